@@ -1,0 +1,75 @@
+"""podilqr_jax: data-based iterative LQR (POD-iLQR) on batched MJX rollouts.
+
+Precision: importing the package enables float64 in JAX (``jax_enable_x64``).
+The least-squares fit differences rollouts that deviate from the nominal by
+~sigma; in float32 a perturbation of 1e-4 on an angle of ~3 keeps about three
+significant digits of dz, too few for the fit (docs/algorithm.md measures it).
+Set ``PODILQR_X64=0`` before importing to keep JAX's float32 default.
+"""
+
+import os as _os
+
+import jax as _jax
+
+if _os.environ.get("PODILQR_X64", "1") != "0":
+    _jax.config.update("jax_enable_x64", True)
+
+from .backward import BackwardResult as BackwardResult
+from .backward import QuadraticCost as QuadraticCost
+from .backward import backward_pass as backward_pass
+from .config import SolverConfig as SolverConfig
+from .env import Env as Env
+from .env import EnvData as EnvData
+from .env import EnvDims as EnvDims
+from .errors import ConfigError as ConfigError
+from .errors import ModelLoadError as ModelLoadError
+from .errors import PodIlqrError as PodIlqrError
+from .errors import TaskError as TaskError
+from .info_state import companion as companion
+from .info_state import info_states as info_states
+from .model_based import linearise as linearise
+from .result import IterationInfo as IterationInfo
+from .result import Result as Result
+from .result import Status as Status
+from .rollout import Policy as Policy
+from .rollout import Trajectory as Trajectory
+from .rollout import simulate as simulate
+from .solver import default_config as default_config
+from .solver import solve as solve
+from .solver import solve_model_based as solve_model_based
+from .sysid import LinearModel as LinearModel
+from .sysid import fit_information_model as fit_information_model
+from .tasks import TASKS as TASKS
+from .tasks import make_task as make_task
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BackwardResult",
+    "ConfigError",
+    "Env",
+    "EnvData",
+    "EnvDims",
+    "IterationInfo",
+    "LinearModel",
+    "ModelLoadError",
+    "Policy",
+    "PodIlqrError",
+    "QuadraticCost",
+    "Result",
+    "SolverConfig",
+    "Status",
+    "TASKS",
+    "TaskError",
+    "Trajectory",
+    "backward_pass",
+    "companion",
+    "default_config",
+    "fit_information_model",
+    "info_states",
+    "linearise",
+    "make_task",
+    "simulate",
+    "solve",
+    "solve_model_based",
+]

@@ -1,0 +1,141 @@
+"""The iLQR backward pass (Riccati recursion) on an information-state model.
+
+Given dZ_{t+1} = A_t dZ_t + B_t du_t about the nominal (Z_bar, u_bar) and the
+cost of ``cost.py`` with z = S Z, sweep t = T-1 .. 0 with v_T, V_T from the
+terminal cost:
+
+  Q_Z  = l_Z + A' v        Q_u  = l_u + B' v
+  Q_ZZ = l_ZZ + A' V A     Q_uu = l_uu + B' V B     Q_uZ = B' V A
+  k_t  = -Qr_uu^{-1} Q_u    K_t  = -Qr_uu^{-1} Qr_uZ
+  v    = Q_Z + K' Q_uu k + K' Q_u + Q_uZ' k
+  V    = Q_ZZ + K' Q_uu K + K' Q_uZ + Q_uZ' K
+
+The regularised Qr_uu = l_uu + B' (V + mu I) B and Qr_uZ = B' (V + mu I) A
+(Levenberg-Marquardt on the value function's Hessian, as in Tassa et al.); mu
+grows until every Qr_uu is positive definite. With our sign convention the
+policy update is u = u_bar + alpha k + K (Z - Z_bar); the paper writes
+du = -k - K dZ with the opposite signs.
+
+The expected cost change of a step alpha is alpha dV1 + alpha^2 dV2 with
+dV1 = sum k' Q_u and dV2 = 1/2 sum k' Q_uu k. The exact gradient of J with
+respect to the open-loop controls on the identified model, g_t = l_u +
+B' lambda_{t+1} (lambda the costate), is returned for the convergence test
+(the paper's R u_bar + B' v ~ 0).
+
+Shapes: A [T, nZ, nZ], B [T, nZ, nu], Z_bar [T+1, nZ], u_bar [T, nu];
+k [T, nu], K [T, nu, nZ], g [T, nu].
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.linalg import cho_solve
+
+from .sysid import LinearModel
+
+
+class QuadraticCost(NamedTuple):
+    """The cost on the information state: e = S Z - z*."""
+
+    S: jnp.ndarray  # [nz, nZ]
+    z_target: jnp.ndarray  # [nz]
+    Q: jnp.ndarray  # [nz, nz]
+    QT: jnp.ndarray  # [nz, nz]
+    R: jnp.ndarray  # [nu, nu]
+
+
+class Regularisation(NamedTuple):
+    """Levenberg-Marquardt schedule (traced values: sweeping them never recompiles)."""
+
+    mu_min: jnp.ndarray
+    mu_max: jnp.ndarray
+    factor: jnp.ndarray
+
+
+class BackwardResult(NamedTuple):
+    k: jnp.ndarray  # [T, nu] feed-forward step
+    K: jnp.ndarray  # [T, nu, nZ] feedback gains
+    dV1: jnp.ndarray  # scalar, first-order expected change
+    dV2: jnp.ndarray  # scalar, second-order expected change
+    grad: jnp.ndarray  # [T, nu] dJ/du_t on the identified model
+    mu: jnp.ndarray  # regularisation used
+    ok: jnp.ndarray  # every Qr_uu was positive definite (and mu <= mu_max)
+
+
+def riccati(model: LinearModel, Z_bar, u_bar, cost: QuadraticCost, mu) -> BackwardResult:
+    """One backward sweep at a fixed regularisation ``mu`` (a ``lax.scan``)."""
+    S, zt, Q, QT, R = cost
+    nZ = S.shape[1]
+    eye = jnp.eye(nZ, dtype=Z_bar.dtype)
+    e_T = S @ Z_bar[-1] - zt
+    v_T = 2.0 * S.T @ QT @ e_T
+    V_T = 2.0 * S.T @ QT @ S
+    l_ZZ = 2.0 * S.T @ Q @ S
+    l_uu = 2.0 * R
+
+    def step(carry, inp):
+        v, V, lam, ok = carry
+        A, B, Z_t, u_t = inp
+        l_Z = 2.0 * S.T @ Q @ (S @ Z_t - zt)
+        l_u = 2.0 * R @ u_t
+        Q_Z = l_Z + A.T @ v
+        Q_u = l_u + B.T @ v
+        Q_ZZ = l_ZZ + A.T @ V @ A
+        Q_uu = l_uu + B.T @ V @ B
+        Q_uZ = B.T @ V @ A
+        V_reg = V + mu * eye
+        Qr_uu = l_uu + B.T @ V_reg @ B
+        Qr_uZ = B.T @ V_reg @ A
+        L = jnp.linalg.cholesky(0.5 * (Qr_uu + Qr_uu.T))
+        pd = jnp.all(jnp.isfinite(L))
+        L = jnp.where(pd, L, jnp.eye(L.shape[0], dtype=L.dtype))
+        k = -cho_solve((L, True), Q_u)
+        K = -cho_solve((L, True), Qr_uZ)
+        v_new = Q_Z + K.T @ Q_uu @ k + K.T @ Q_u + Q_uZ.T @ k
+        V_new = Q_ZZ + K.T @ Q_uu @ K + K.T @ Q_uZ + Q_uZ.T @ K
+        V_new = 0.5 * (V_new + V_new.T)
+        g = l_u + B.T @ lam
+        lam_new = l_Z + A.T @ lam
+        dv = jnp.stack([k @ Q_u, 0.5 * k @ Q_uu @ k])
+        return (v_new, V_new, lam_new, ok & pd), (k, K, g, dv)
+
+    init = (v_T, V_T, v_T, jnp.array(True))
+    (_, _, _, ok), (k, K, g, dv) = jax.lax.scan(
+        step, init, (model.A, model.B, Z_bar[:-1], u_bar), reverse=True
+    )
+    dV = jnp.sum(dv, axis=0)
+    return BackwardResult(k, K, dV[0], dV[1], g, jnp.asarray(mu, Z_bar.dtype), ok)
+
+
+@jax.jit
+def backward_pass(model: LinearModel, Z_bar, u_bar, cost: QuadraticCost, mu, reg: Regularisation) -> BackwardResult:
+    """Backward sweep at ``mu``, raising mu by ``reg.factor`` until it succeeds.
+
+    ``ok`` is False when mu would pass ``reg.mu_max`` (or the model is not
+    finite); the gains are then zero, never NaN.
+    """
+    finite = jnp.all(jnp.isfinite(model.A)) & jnp.all(jnp.isfinite(model.B))
+    mu = jnp.maximum(mu, reg.mu_min)
+    first = riccati(model, Z_bar, u_bar, cost, mu)
+
+    def cond(res):
+        return finite & (~res.ok) & (res.mu * reg.factor <= reg.mu_max)
+
+    def body(res):
+        return riccati(model, Z_bar, u_bar, cost, res.mu * reg.factor)
+
+    res = jax.lax.while_loop(cond, body, first)
+    ok = res.ok & finite
+    zero = functools.partial(jnp.where, ok)
+    return res._replace(
+        k=zero(res.k, 0.0),
+        K=zero(res.K, 0.0),
+        dV1=zero(res.dV1, 0.0),
+        dV2=zero(res.dV2, 0.0),
+        grad=jnp.where(finite, res.grad, 0.0),
+        ok=ok,
+    )

@@ -1,0 +1,132 @@
+"""Solver settings, validated in Python before anything is traced.
+
+Static fields (shapes and loop bounds: ``q``, ``n_s``, ``n_alphas``) are
+compiled into the jitted functions; the rest enter as traced scalars, so
+sweeping ``sigma`` or a tolerance never recompiles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Optional
+
+from .env import Env
+from .errors import ConfigError
+from .info_state import n_regressors
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverConfig:
+    """Settings of POD-iLQR (and of the model-based reference solver).
+
+    Attributes:
+      q: past observations in the information state; None picks 1 when the
+        task observes the full state and 2 otherwise.
+      n_s: sysid rollouts per iteration (must be >= q (nz + nu), the number of
+        regressors of the least-squares fit).
+      sigma: standard deviation of the sysid control perturbations du.
+      max_iterations: iLQR iterations at most.
+      rtol: stop when an accepted step lowers the cost by less than rtol x J,
+        or when no step can and the predicted decrease is below rtol x J.
+      gtol: stop when max_t |dJ/du_t| on the identified model is below gtol.
+      mu_init, mu_min, mu_max, mu_factor: Levenberg-Marquardt regularisation:
+        start, floor, ceiling (past it the solve stops) and growth factor.
+      n_alphas: line-search candidates alpha = 1, 1/2, ..., 2^-(n_alphas-1),
+        all rolled out as one batch.
+      accept_ratio: accept a step only if the actual decrease is at least this
+        fraction of the predicted one (and strictly positive).
+      rcond: relative singular-value cut-off of the least-squares fit.
+      seed: PRNG seed of the perturbations (same seed, same result).
+    """
+
+    q: Optional[int] = None
+    n_s: int = 40
+    sigma: float = 1e-4
+    max_iterations: int = 300
+    rtol: float = 1e-9
+    gtol: float = 1e-9
+    mu_init: float = 1e-6
+    mu_min: float = 1e-6
+    mu_max: float = 1e10
+    mu_factor: float = 2.0
+    n_alphas: int = 10
+    accept_ratio: float = 1e-4
+    rcond: float = 1e-10
+    seed: int = 0
+
+    def replace(self, **changes: Any) -> "SolverConfig":
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise ConfigError(
+                f"Unknown solver setting(s) {sorted(unknown)}; known settings: "
+                f"{sorted(f.name for f in dataclasses.fields(self))}."
+            )
+        return dataclasses.replace(self, **changes)
+
+    def resolved_q(self, env: Env) -> int:
+        if self.q is not None:
+            return self.q
+        return 1 if fully_observed(env) else 2
+
+    def validate(self, env: Env, data_based: bool = True) -> int:
+        """Check every setting against the task; returns the q to use."""
+        _int("n_s", self.n_s, 1)
+        _int("max_iterations", self.max_iterations, 1)
+        _int("n_alphas", self.n_alphas, 1)
+        _int("seed", self.seed, 0)
+        if self.q is not None:
+            _int("q", self.q, 1)
+        for name in ("sigma", "mu_max", "mu_factor"):
+            _positive(name, getattr(self, name))
+        for name in ("rtol", "gtol", "mu_init", "mu_min", "accept_ratio", "rcond"):
+            _nonnegative(name, getattr(self, name))
+        if self.mu_factor <= 1:
+            raise ConfigError(f"`mu_factor` must be > 1 so that regularisation can grow; got {self.mu_factor!r}.")
+        if self.mu_min > self.mu_max:
+            raise ConfigError(
+                f"`mu_min` ({self.mu_min:g}) is above `mu_max` ({self.mu_max:g}); choose mu_min <= mu_max."
+            )
+        q = self.resolved_q(env) if data_based else 1
+        T = env.dims.horizon
+        if T <= q:
+            raise ConfigError(
+                f"The horizon T={T} must exceed q={q}: the information state spans q "
+                f"steps. Use a horizon of at least {q + 1} or lower q."
+            )
+        if data_based:
+            p = n_regressors(env.dims.nz, env.dims.nu, q)
+            if self.n_s < p:
+                raise ConfigError(
+                    f"`n_s`={self.n_s} is below the {p} regressors of the ARMA fit at "
+                    f"q={q} (q x (nz + nu) with nz={env.dims.nz}, nu={env.dims.nu}): the "
+                    f"least squares would be underdetermined. Use n_s >= {p} (a few "
+                    "times more is better), or lower q."
+                )
+        return q
+
+
+def fully_observed(env: Env) -> bool:
+    """True when the observation determines the whole state (C square, full rank)."""
+    return env.dims.nz == env.dims.nx
+
+
+def _int(name: str, value: Any, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"`{name}` must be an integer >= {minimum}; got {value!r}.")
+
+
+def _finite_number(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"`{name}` must be a finite number; got {value!r}.")
+    return float(value)
+
+
+def _positive(name: str, value: Any) -> None:
+    if _finite_number(name, value) <= 0:
+        raise ConfigError(f"`{name}` must be > 0; got {value!r}.")
+
+
+def _nonnegative(name: str, value: Any) -> None:
+    if _finite_number(name, value) < 0:
+        raise ConfigError(f"`{name}` must be >= 0; got {value!r}.")

@@ -1,0 +1,427 @@
+"""A control task on a MuJoCo model: dynamics, observation, cost, start, target.
+
+Notation (shapes):
+  x = [qpos, qvel]            state, [nx] with nx = nq + nv
+  z = C x                     observation, [nz]
+  u                           control (MuJoCo ``ctrl``), [nu]
+  T                           horizon in control steps; one control step is
+                              ``substeps`` physics steps of the model's timestep
+  cost  J = sum_{t<T} (z_t - z*)' Q (z_t - z*) + u_t' R u_t
+            + (z_T - z*)' QT (z_T - z*)
+
+An :class:`Env` splits into hashable static dimensions (:class:`EnvDims`, used
+as a static jit argument: changing them recompiles) and a pytree of arrays
+(:class:`EnvData`, traced: changing the values never recompiles).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any, Mapping, NamedTuple
+
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from .errors import ModelLoadError, TaskError
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvDims:
+    """Static sizes of a task (hashable; a static jit argument)."""
+
+    nq: int
+    nv: int
+    nu: int
+    nz: int
+    substeps: int
+    horizon: int
+
+    @property
+    def nx(self) -> int:
+        return self.nq + self.nv
+
+
+class EnvData(NamedTuple):
+    """Traced arrays of a task."""
+
+    model: Any  # mjx.Model
+    C: jnp.ndarray  # [nz, nx] observation matrix
+    x0: jnp.ndarray  # [nx] start state (qpos, qvel)
+    z_target: jnp.ndarray  # [nz]
+    Q: jnp.ndarray  # [nz, nz] running cost on the observation error
+    QT: jnp.ndarray  # [nz, nz] terminal cost
+    R: jnp.ndarray  # [nu, nu] control cost
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Env:
+    """A task: a MuJoCo model with observation, cost, start and target.
+
+    Build one with :meth:`Env.from_xml` (any MJCF file) or
+    :func:`podilqr_jax.make_task` (bundled tasks).
+    """
+
+    name: str
+    mj_model: mujoco.MjModel
+    dims: EnvDims
+    data: EnvData
+    observation_labels: tuple[str, ...]
+    control_dt: float
+    solver_defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    # ----------------------------------------------------------------- building
+    @classmethod
+    def from_xml(
+        cls,
+        path: str | os.PathLike,
+        *,
+        observation: Any = "full",
+        substeps: int = 1,
+        horizon: int = 30,
+        x0: Any = None,
+        target: Any = None,
+        Q: Any = 1.0,
+        QT: Any = 100.0,
+        R: Any = 1.0,
+        name: str | None = None,
+    ) -> "Env":
+        """Load an MJCF file and describe the task on it.
+
+        Args:
+          path: the MJCF file.
+          observation: ``"full"`` (all of qpos and qvel), ``"qpos"`` (all
+            positions), a mapping ``{"qpos": [...], "qvel": [...]}`` whose
+            entries are indices or joint names, or a matrix ``C`` of shape
+            ``[nz, nq + nv]`` with full row rank.
+          substeps: physics steps per control step (control dt = substeps x
+            the model's timestep).
+          horizon: number of control steps T.
+          x0: start state: a mapping ``{"qpos": [...], "qvel": [...]}`` or a
+            vector of length nq + nv. Default: the model's ``qpos0`` at rest.
+          target: target observation z*, length nz. Default: the start's.
+          Q, QT: running and terminal cost on the observation error: a scalar
+            (times identity), a diagonal (length nz) or a matrix [nz, nz];
+            symmetric positive semi-definite.
+          R: control cost: scalar, diagonal or matrix [nu, nu]; positive
+            definite.
+        """
+        path = os.fspath(path)
+        if not os.path.exists(path):
+            raise ModelLoadError(
+                f"The model file {path!r} does not exist. Give the path of an "
+                "MJCF (.xml) file; in a task file it is relative to the task file."
+            )
+        try:
+            mj_model = mujoco.MjModel.from_xml_path(path)
+        except Exception as exc:  # mujoco raises ValueError with its parser message
+            raise ModelLoadError(
+                f"MuJoCo could not load {path!r}: {exc}. Fix the MJCF file "
+                "(MuJoCo's message above names the element and line)."
+            ) from None
+        return cls.from_model(
+            mj_model,
+            observation=observation,
+            substeps=substeps,
+            horizon=horizon,
+            x0=x0,
+            target=target,
+            Q=Q,
+            QT=QT,
+            R=R,
+            name=name or os.path.splitext(os.path.basename(path))[0],
+        )
+
+    @classmethod
+    def from_model(
+        cls,
+        mj_model: mujoco.MjModel,
+        *,
+        observation: Any = "full",
+        substeps: int = 1,
+        horizon: int = 30,
+        x0: Any = None,
+        target: Any = None,
+        Q: Any = 1.0,
+        QT: Any = 100.0,
+        R: Any = 1.0,
+        name: str = "model",
+    ) -> "Env":
+        """Like :meth:`from_xml`, from an already loaded ``mujoco.MjModel``."""
+        nq, nv, nu = mj_model.nq, mj_model.nv, mj_model.nu
+        if nu < 1:
+            raise TaskError(
+                f"The model {name!r} has no actuators (nu = 0); POD-iLQR needs at "
+                "least one control. Add an <actuator> to the MJCF file."
+            )
+        _check_int("substeps", substeps, minimum=1)
+        _check_int("horizon", horizon, minimum=1)
+        try:
+            mjx_model = mjx.put_model(mj_model)
+        except Exception as exc:
+            raise ModelLoadError(
+                f"MJX cannot load the model {name!r}: {type(exc).__name__}: {exc}. "
+                "MJX supports a subset of MuJoCo (no `energy` flag, no fluid "
+                "forces, limited geom pairs, ...); remove the feature named above."
+            ) from None
+
+        C, labels = _observation_matrix(mj_model, observation)
+        nz = C.shape[0]
+        x0_vec = _start_state(mj_model, x0)
+        if target is None:
+            target_vec = C @ x0_vec
+        else:
+            target_vec = _vector("target", target, nz, "the observation size nz")
+        Qm = _cost_matrix("Q", Q, nz, "nz (observation size)", definite=False)
+        QTm = _cost_matrix("QT", QT, nz, "nz (observation size)", definite=False)
+        Rm = _cost_matrix("R", R, nu, "nu (number of controls)", definite=True)
+
+        dims = EnvDims(nq=nq, nv=nv, nu=nu, nz=nz, substeps=int(substeps), horizon=int(horizon))
+        data = EnvData(
+            model=mjx_model,
+            C=jnp.asarray(C),
+            x0=jnp.asarray(x0_vec),
+            z_target=jnp.asarray(target_vec),
+            Q=jnp.asarray(Qm),
+            QT=jnp.asarray(QTm),
+            R=jnp.asarray(Rm),
+        )
+        return cls(
+            name=name,
+            mj_model=mj_model,
+            dims=dims,
+            data=data,
+            observation_labels=labels,
+            control_dt=float(mj_model.opt.timestep) * int(substeps),
+        )
+
+    # --------------------------------------------------------------- variations
+    def replace(self, **changes: Any) -> "Env":
+        """A copy with some of ``horizon``, ``x0``, ``target``, ``Q``, ``QT``,
+        ``R`` changed (validated as in :meth:`from_model`)."""
+        allowed = {"horizon", "x0", "target", "Q", "QT", "R", "name"}
+        unknown = set(changes) - allowed
+        if unknown:
+            raise TaskError(
+                f"Env.replace got unknown field(s) {sorted(unknown)}; allowed: {sorted(allowed)}."
+            )
+        d = self.data
+        kwargs = dict(
+            observation=np.asarray(d.C),
+            substeps=self.dims.substeps,
+            horizon=self.dims.horizon,
+            x0=np.asarray(d.x0),
+            target=np.asarray(d.z_target),
+            Q=np.asarray(d.Q),
+            QT=np.asarray(d.QT),
+            R=np.asarray(d.R),
+            name=self.name,
+        )
+        kwargs.update(changes)
+        env = Env.from_model(self.mj_model, **kwargs)
+        return dataclasses.replace(
+            env, observation_labels=self.observation_labels, solver_defaults=self.solver_defaults
+        )
+
+    def full_state_view(self) -> "Env":
+        """The same task seen through the full state x (C = I).
+
+        The cost is lifted so that it is the same function of the controls:
+        Q_x = C' Q C, QT_x = C' QT C and x* = C^+ z* (exact because C has full
+        row rank). Used by the model-based iLQR, which works on the state.
+        """
+        C = np.asarray(self.data.C)
+        nx = self.dims.nx
+        x_target = np.linalg.pinv(C) @ np.asarray(self.data.z_target)
+        data = self.data._replace(
+            C=jnp.eye(nx),
+            z_target=jnp.asarray(x_target),
+            Q=jnp.asarray(C.T @ np.asarray(self.data.Q) @ C),
+            QT=jnp.asarray(C.T @ np.asarray(self.data.QT) @ C),
+        )
+        dims = dataclasses.replace(self.dims, nz=nx)
+        labels = _state_labels(self.mj_model)
+        return dataclasses.replace(self, dims=dims, data=data, observation_labels=labels)
+
+    @property
+    def state_labels(self) -> tuple[str, ...]:
+        return _state_labels(self.mj_model)
+
+    def __repr__(self) -> str:
+        d = self.dims
+        return (
+            f"Env({self.name!r}, nq={d.nq}, nv={d.nv}, nu={d.nu}, nz={d.nz}, "
+            f"horizon={d.horizon}, control_dt={self.control_dt:g})"
+        )
+
+
+# --------------------------------------------------------------------- helpers
+def _check_int(name: str, value: Any, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise TaskError(
+            f"`{name}` must be an integer >= {minimum}; got {value!r}. "
+            f"Set `{name}` to a whole number of at least {minimum}."
+        )
+
+
+def _state_labels(m: mujoco.MjModel) -> tuple[str, ...]:
+    labels = []
+    for kind, n, adr_of in (("qpos", m.nq, m.jnt_qposadr), ("qvel", m.nv, m.jnt_dofadr)):
+        names = [f"{kind}[{i}]" for i in range(n)]
+        for j in range(m.njnt):
+            jname = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
+            width = _joint_width(m, j, kind)
+            for w in range(width):
+                names[adr_of[j] + w] = f"{kind}:{jname}" + (f"[{w}]" if width > 1 else "")
+        labels += names
+    return tuple(labels)
+
+
+def _joint_width(m: mujoco.MjModel, j: int, kind: str) -> int:
+    jtype = m.jnt_type[j]
+    if jtype == mujoco.mjtJoint.mjJNT_FREE:
+        return 7 if kind == "qpos" else 6
+    if jtype == mujoco.mjtJoint.mjJNT_BALL:
+        return 4 if kind == "qpos" else 3
+    return 1
+
+
+def _index_of(m: mujoco.MjModel, kind: str, entry: Any) -> list[int]:
+    n = m.nq if kind == "qpos" else m.nv
+    if isinstance(entry, (int, np.integer)) and not isinstance(entry, bool):
+        if not 0 <= entry < n:
+            raise TaskError(
+                f"Observation index {kind}[{entry}] is out of range: the model has "
+                f"{kind} of length {n}. Use an index in 0..{n - 1} or a joint name."
+            )
+        return [int(entry)]
+    if isinstance(entry, str):
+        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, entry)
+        if j < 0:
+            names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, i) for i in range(m.njnt)]
+            raise TaskError(
+                f"Unknown joint {entry!r} in the {kind} observation; the model's "
+                f"joints are {names}."
+            )
+        adr = (m.jnt_qposadr if kind == "qpos" else m.jnt_dofadr)[j]
+        return list(range(adr, adr + _joint_width(m, j, kind)))
+    raise TaskError(
+        f"Observation entries must be indices or joint names; got {entry!r} in {kind}."
+    )
+
+
+def _observation_matrix(m: mujoco.MjModel, observation: Any) -> tuple[np.ndarray, tuple[str, ...]]:
+    nq, nv = m.nq, m.nv
+    nx = nq + nv
+    labels_all = _state_labels(m)
+    if isinstance(observation, str):
+        if observation == "full":
+            rows = list(range(nx))
+        elif observation == "qpos":
+            rows = list(range(nq))
+        else:
+            raise TaskError(
+                f"Unknown observation {observation!r}; use 'full', 'qpos', a mapping "
+                "{'qpos': [...], 'qvel': [...]} or a matrix C of shape [nz, nq + nv]."
+            )
+        C = np.eye(nx)[rows]
+        return C, tuple(labels_all[r] for r in rows)
+    if isinstance(observation, Mapping):
+        unknown = set(observation) - {"qpos", "qvel"}
+        if unknown:
+            raise TaskError(
+                f"Observation mapping has unknown key(s) {sorted(unknown)}; use 'qpos' and/or 'qvel'."
+            )
+        rows: list[int] = []
+        for kind, offset in (("qpos", 0), ("qvel", nq)):
+            for entry in observation.get(kind, []) or []:
+                rows += [offset + i for i in _index_of(m, kind, entry)]
+        if not rows:
+            raise TaskError(
+                "The observation selects nothing (size 0); list at least one qpos or qvel entry."
+            )
+        if len(set(rows)) != len(rows):
+            raise TaskError(f"The observation selects some entry twice: {rows}; list each once.")
+        C = np.eye(nx)[rows]
+        return C, tuple(labels_all[r] for r in rows)
+    C = np.asarray(observation, dtype=float)
+    if C.ndim != 2 or C.shape[1] != nx or C.shape[0] < 1:
+        raise TaskError(
+            f"The observation matrix C must have shape [nz, nq + nv] = [nz, {nx}] with "
+            f"nz >= 1; got shape {C.shape}."
+        )
+    if not np.all(np.isfinite(C)):
+        raise TaskError("The observation matrix C holds non-finite numbers; use finite values.")
+    if np.linalg.matrix_rank(C) < C.shape[0]:
+        raise TaskError(
+            f"The observation matrix C ({C.shape[0]} rows) is rank deficient: some "
+            "observation is a combination of the others. Remove redundant rows."
+        )
+    return C, tuple(f"z[{i}]" for i in range(C.shape[0]))
+
+
+def _vector(name: str, value: Any, n: int, what: str) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise TaskError(f"`{name}` must be a list of numbers; got {value!r}.") from None
+    if v.shape != (n,):
+        raise TaskError(
+            f"`{name}` must have length {n} ({what}); got length {v.size}: {value!r}."
+        )
+    if not np.all(np.isfinite(v)):
+        raise TaskError(f"`{name}` holds non-finite numbers ({value!r}); use finite values.")
+    return v
+
+
+def _start_state(m: mujoco.MjModel, x0: Any) -> np.ndarray:
+    nq, nv = m.nq, m.nv
+    if x0 is None:
+        return np.concatenate([np.array(m.qpos0, dtype=float), np.zeros(nv)])
+    if isinstance(x0, Mapping):
+        unknown = set(x0) - {"qpos", "qvel"}
+        if unknown:
+            raise TaskError(f"`x0` has unknown key(s) {sorted(unknown)}; use 'qpos' and 'qvel'.")
+        qpos = (
+            _vector("x0.qpos", x0["qpos"], nq, "nq") if "qpos" in x0 else np.array(m.qpos0, dtype=float)
+        )
+        qvel = _vector("x0.qvel", x0["qvel"], nv, "nv") if "qvel" in x0 else np.zeros(nv)
+        return np.concatenate([qpos, qvel])
+    return _vector("x0", x0, nq + nv, "nq + nv: qpos then qvel")
+
+
+def _cost_matrix(name: str, value: Any, n: int, what: str, definite: bool) -> np.ndarray:
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise TaskError(f"`{name}` must be a number, a list or a matrix; got {value!r}.") from None
+    if a.ndim == 0:
+        M = float(a) * np.eye(n)
+    elif a.ndim == 1 and a.shape == (n,):
+        M = np.diag(a)
+    elif a.ndim == 2 and a.shape == (n, n):
+        M = a.copy()
+    else:
+        raise TaskError(
+            f"`{name}` must be a scalar, a diagonal of length {n} or a matrix [{n}, {n}] "
+            f"({what}); got shape {a.shape}."
+        )
+    if not np.all(np.isfinite(M)):
+        raise TaskError(f"`{name}` holds non-finite numbers; use finite values.")
+    if not np.allclose(M, M.T, rtol=1e-10, atol=1e-12):
+        raise TaskError(f"`{name}` must be symmetric; got {M.tolist()}.")
+    eig = np.linalg.eigvalsh(M)
+    if definite and eig.min() <= 0:
+        raise TaskError(
+            f"`{name}` must be positive definite (smallest eigenvalue {eig.min():g}); "
+            "use strictly positive control weights."
+        )
+    if not definite and eig.min() < -1e-12 * max(1.0, abs(eig).max()):
+        raise TaskError(
+            f"`{name}` must be positive semi-definite (smallest eigenvalue {eig.min():g}); "
+            "use non-negative weights."
+        )
+    return M
+

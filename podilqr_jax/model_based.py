@@ -1,0 +1,33 @@
+"""Exact linearisation of the MJX dynamics (the model-based reference).
+
+The control-step map x_{t+1} = f(x_t, u_t) (``substeps`` MuJoCo steps) is
+differentiated with ``jax.jacfwd`` at every nominal (x_bar_t, u_bar_t), giving
+the true LTV model A_t = df/dx, B_t = df/du on the full state. The model-based
+iLQR runs the same backward pass and line search on it; it is the reference
+optimum for tests, benchmarks and the noisy studies.
+
+Shapes: x_bar [T+1, nx], u_bar [T, nu]; A [T, nx, nx], B [T, nx, nu].
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+from mujoco import mjx
+
+from .env import EnvData, EnvDims
+from .rollout import physics_step, state_of, with_state
+from .sysid import LinearModel
+
+
+@functools.partial(jax.jit, static_argnames=("dims",))
+def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar) -> LinearModel:
+    """(A_t, B_t) = Jacobians of the control-step map along (x_bar, u_bar)."""
+    d0 = mjx.make_data(data.model)
+
+    def f(x, u):
+        return state_of(physics_step(dims, data.model, with_state(dims, d0, x), u))
+
+    A, B = jax.vmap(jax.jacfwd(f, argnums=(0, 1)))(x_bar[:-1], u_bar)
+    return LinearModel(A, B)

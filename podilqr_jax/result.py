@@ -1,0 +1,164 @@
+"""What a solve returns: the solution, its history and why it stopped."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import json
+import math
+import os
+import tempfile
+from typing import Any, Optional
+
+import numpy as np
+
+
+class Status(str, enum.Enum):
+    """Why a solve stopped."""
+
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "max_iterations"
+    LINE_SEARCH_FAILED = "line_search_failed"
+    NONFINITE = "nonfinite"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclasses.dataclass(frozen=True)
+class IterationInfo:
+    """One row of the live report (handed to the ``callback`` of a solve)."""
+
+    iteration: int
+    cost: float
+    alpha: float
+    mu: float
+    grad_norm: float
+    accepted: bool
+    rollouts: int
+    rollouts_per_s: float
+    wall_s: float
+
+
+@dataclasses.dataclass
+class Result:
+    """The outcome of :func:`podilqr_jax.solve` or :func:`solve_model_based`.
+
+    Arrays are NumPy (host) arrays. ``K`` and ``k`` are the gains of the last
+    backward pass (u = u_bar + alpha k + K (Z - Z_bar)); ``states`` are the
+    nominal's full MuJoCo states [T+1, nq + nv], ``observations`` its z.
+    """
+
+    method: str
+    task: str
+    status: Status
+    message: str
+    controls: np.ndarray  # [T, nu]
+    observations: np.ndarray  # [T+1, nz]
+    states: np.ndarray  # [T+1, nx]
+    info_states: np.ndarray  # [T+1, nZ]
+    K: np.ndarray  # [T, nu, nZ]
+    k: np.ndarray  # [T, nu]
+    q: int
+    cost_history: list[float]  # nominal cost before iteration 1, then after each
+    alpha_history: list[float]
+    mu_history: list[float]
+    grad_norm_history: list[float]
+    iterations: int
+    rollouts: int
+    wall_s: float
+    compile_s: float
+    run_s: float
+    compiles_per_iteration: list[int]
+    phase_s: dict[str, float]
+    config: dict[str, Any]
+    control_dt: float
+    observation_labels: tuple[str, ...] = ()
+    state_labels: tuple[str, ...] = ()
+
+    @property
+    def final_cost(self) -> float:
+        return self.cost_history[-1]
+
+    @property
+    def converged(self) -> bool:
+        return self.status == Status.CONVERGED
+
+    @property
+    def recompiles_after_first(self) -> int:
+        return int(sum(self.compiles_per_iteration[1:]))
+
+    def summary(self) -> str:
+        return (
+            f"{self.method} on {self.task}: {self.status} after {self.iterations} iterations "
+            f"({self.message}); cost {self.cost_history[0]:.6g} -> {self.final_cost:.6g}; "
+            f"{self.rollouts} rollouts; {self.wall_s:.2f} s wall ({self.compile_s:.2f} s compiling)"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "method": self.method,
+            "task": self.task,
+            "status": str(self.status),
+            "message": self.message,
+            "final_cost": self.final_cost,
+            "cost_history": self.cost_history,
+            "alpha_history": self.alpha_history,
+            "mu_history": self.mu_history,
+            "grad_norm_history": self.grad_norm_history,
+            "controls": self.controls.tolist(),
+            "observations": self.observations.tolist(),
+            "states": self.states.tolist(),
+            "K": self.K.tolist(),
+            "k": self.k.tolist(),
+            "q": self.q,
+            "iterations": self.iterations,
+            "rollouts": self.rollouts,
+            "wall_s": self.wall_s,
+            "compile_s": self.compile_s,
+            "run_s": self.run_s,
+            "compiles_per_iteration": self.compiles_per_iteration,
+            "recompiles_after_first": self.recompiles_after_first,
+            "phase_s": self.phase_s,
+            "config": self.config,
+            "control_dt": self.control_dt,
+            "observation_labels": list(self.observation_labels),
+            "state_labels": list(self.state_labels),
+        }
+
+    def save_json(self, path: str | os.PathLike) -> None:
+        """Write the result as JSON atomically (a temporary file, then rename)."""
+        write_json_atomic(path, self.to_dict())
+
+
+def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=directory)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(_jsonable(obj), f, indent=1)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, np.generic):
+        return _jsonable(obj.item())
+    return obj
+
+
+def status_from_string(s: str) -> Optional[Status]:
+    try:
+        return Status(s)
+    except ValueError:
+        return None

@@ -1,0 +1,300 @@
+"""The outer iLQR loop: a thin Python driver over jitted stages.
+
+Each iteration of POD-iLQR:
+  1. identification: ``n_s`` perturbation rollouts about the nominal (one MJX
+     batch) and a per-step least-squares ARMA fit (``sysid``);
+  2. backward pass with adaptive Levenberg-Marquardt regularisation;
+  3. forward pass: every step size of the line search as one MJX batch.
+The model-based reference replaces step 1 by exact Jacobians (``model_based``).
+
+The driver only moves scalars to the host (cost, acceptance, step size, mu),
+so each iteration can be reported live; every array stays on the device.
+All jitted stages compile during the first iteration and never again (checked
+by ``compile_watch`` and a test).
+
+Regularisation schedule: after an accepted step mu <- max(mu / f, mu_min);
+after the n-th consecutive rejected step mu <- max(mu f^n, mu_min) and the
+backward pass is redone on the same identified model (noiseless rollouts are
+deterministic, so re-identifying would give the same model).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Callable, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .backward import BackwardResult, QuadraticCost, Regularisation, backward_pass
+from .compile_watch import CompileWatch
+from .config import SolverConfig
+from .env import Env
+from .errors import ConfigError
+from .info_state import info_dim, observation_selector
+from .line_search import line_search
+from .model_based import linearise
+from .result import IterationInfo, Result, Status
+from .rollout import Policy, open_loop_policy, perturbation_rollouts
+from .sysid import LinearModel, fit_information_model
+
+Callback = Callable[[IterationInfo], None]
+
+PHASES = ("rollouts", "fit", "backward", "line_search", "host")
+
+
+def default_config(env: Env, **overrides) -> SolverConfig:
+    """The task's recommended settings (``env`` defaults), with overrides."""
+    settings = dict(getattr(env, "solver_defaults", {}) or {})
+    settings.update(overrides)
+    return SolverConfig().replace(**settings)
+
+
+def solve(
+    env: Env,
+    cfg: Optional[SolverConfig] = None,
+    *,
+    u_init=None,
+    callback: Optional[Callback] = None,
+) -> Result:
+    """POD-iLQR: optimise the controls of ``env`` from rollouts alone.
+
+    Args:
+      env: the task (see :class:`Env`, :func:`make_task`).
+      cfg: solver settings; default :func:`default_config` of the task.
+      u_init: initial nominal controls [T, nu]; default zeros.
+      callback: called with an :class:`IterationInfo` after every iteration.
+
+    Returns:
+      A :class:`Result`; its ``status`` says why the solve stopped.
+    """
+    cfg = default_config(env) if cfg is None else cfg
+    q = cfg.validate(env, data_based=True)
+    dims, data = env.dims, env.data
+    nZ = info_dim(dims.nz, dims.nu, q)
+    sigma = jnp.asarray(cfg.sigma)
+    rcond = jnp.asarray(cfg.rcond)
+    zero_policy = open_loop_policy(jnp.zeros((dims.horizon, dims.nu)), nZ)
+
+    def identify(key, nominal):
+        t0 = time.perf_counter()
+        policy = zero_policy._replace(u_bar=nominal.u_bar)
+        traj = perturbation_rollouts(dims, q, cfg.n_s, data, policy, key, sigma)
+        traj.z.block_until_ready()
+        t1 = time.perf_counter()
+        model, report = fit_information_model(traj.z, traj.u, nominal.z_bar, nominal.u_bar, q, rcond)
+        finite = bool(report.all_finite)
+        t2 = time.perf_counter()
+        return model, finite, cfg.n_s, {"rollouts": t1 - t0, "fit": t2 - t1}
+
+    return _iterate("pod-ilqr", env, env, cfg, q, identify, u_init, callback)
+
+
+def solve_model_based(
+    env: Env,
+    cfg: Optional[SolverConfig] = None,
+    *,
+    u_init=None,
+    callback: Optional[Callback] = None,
+) -> Result:
+    """The model-based reference: iLQR with exact MJX Jacobians on the full state.
+
+    Same task, cost, backward pass, line search and stopping rules as
+    :func:`solve`; the identification is replaced by ``jax.jacfwd`` through
+    ``mjx.step``. The data-based settings (``q``, ``n_s``, ``sigma``) are unused.
+    """
+    cfg = default_config(env) if cfg is None else cfg
+    cfg.validate(env, data_based=False)
+    view = env.full_state_view()
+    dims, data = view.dims, view.data
+
+    def identify(key, nominal):
+        t0 = time.perf_counter()
+        model = linearise(dims, data, nominal.x_bar, nominal.u_bar)
+        finite = bool(jnp.all(jnp.isfinite(model.A)) & jnp.all(jnp.isfinite(model.B)))
+        return model, finite, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}
+
+    return _iterate("model-based", env, view, cfg, 1, identify, u_init, callback)
+
+
+@dataclasses.dataclass
+class _Nominal:
+    u_bar: jnp.ndarray
+    z_bar: jnp.ndarray
+    x_bar: jnp.ndarray
+    Z_bar: jnp.ndarray
+    cost: float
+
+
+def _iterate(method, env, view, cfg, q, identify, u_init, callback) -> Result:
+    t_start = time.perf_counter()
+    dims, data = view.dims, view.data
+    nZ = info_dim(dims.nz, dims.nu, q)
+    u0 = _initial_controls(u_init, dims)
+    cost_model = QuadraticCost(observation_selector(dims.nz, dims.nu, q), data.z_target, data.Q, data.QT, data.R)
+    reg = Regularisation(jnp.asarray(cfg.mu_min), jnp.asarray(cfg.mu_max), jnp.asarray(cfg.mu_factor))
+    alphas = jnp.asarray(0.5 ** np.arange(cfg.n_alphas))
+    accept_ratio = jnp.asarray(cfg.accept_ratio)
+    zero_k = jnp.zeros((dims.horizon, dims.nu))
+    phase_s = dict.fromkeys(PHASES, 0.0)
+    compiles: list[int] = []
+    total_watch = CompileWatch()
+    key = jax.random.PRNGKey(cfg.seed)
+
+    def measure(policy, k, cost0, dV1, dV2):
+        t0 = time.perf_counter()
+        ls = line_search(dims, q, data, policy, k, alphas, cost0, dV1, dV2, accept_ratio)
+        accepted = bool(ls.accepted)
+        phase_s["line_search"] += time.perf_counter() - t0
+        return ls, accepted
+
+    with total_watch:
+        # The first nominal: the line search with k = 0, K = 0 rolls out u0 open loop.
+        with CompileWatch() as watch0:
+            ls, _ = measure(open_loop_policy(u0, nZ), zero_k, jnp.inf, 0.0, 0.0)
+        nominal = _Nominal(ls.trajectory.u, ls.trajectory.z, ls.trajectory.x, ls.Z, float(ls.cost))
+        cost_history = [nominal.cost]
+        alpha_history: list[float] = []
+        mu_history: list[float] = []
+        grad_history: list[float] = []
+        rollouts = cfg.n_alphas
+        mu = max(cfg.mu_init, cfg.mu_min)
+        failures = 0
+        model: Optional[LinearModel] = None
+        back: Optional[BackwardResult] = None
+        status, message = Status.MAX_ITERATIONS, f"reached max_iterations={cfg.max_iterations}"
+        iteration = 0
+        first_compiles = watch0.compiles
+
+        if not np.isfinite(nominal.cost):
+            status, message = Status.NONFINITE, "the initial controls give a non-finite rollout"
+        else:
+            for iteration in range(1, cfg.max_iterations + 1):
+                t_iter = time.perf_counter()
+                with CompileWatch() as watch:
+                    stop, iter_rollouts = None, 0
+                    if model is None:
+                        key, sub = jax.random.split(key)
+                        model, finite, iter_rollouts, times = identify(sub, nominal)
+                        for name, secs in times.items():
+                            phase_s[name] += secs
+                        if not finite:
+                            stop = (Status.NONFINITE, "a sysid rollout or the fitted model is not finite")
+                    if stop is None:
+                        t0 = time.perf_counter()
+                        back = backward_pass(model, nominal.Z_bar, nominal.u_bar, cost_model, jnp.asarray(mu), reg)
+                        back_ok = bool(back.ok)
+                        mu = float(back.mu)
+                        grad_norm = float(jnp.max(jnp.abs(back.grad)))
+                        phase_s["backward"] += time.perf_counter() - t0
+                        grad_history.append(grad_norm)
+                        mu_history.append(mu)
+                        if not back_ok:
+                            stop = (
+                                Status.LINE_SEARCH_FAILED,
+                                f"the backward pass needs regularisation above mu_max={cfg.mu_max:g}",
+                            )
+                        elif grad_norm < cfg.gtol:
+                            stop = (Status.CONVERGED, f"gradient norm {grad_norm:.3g} below gtol={cfg.gtol:g}")
+                    if stop is None:
+                        policy = Policy(nominal.u_bar, nominal.Z_bar[:-1], back.K)
+                        ls, accepted = measure(policy, back.k, jnp.asarray(nominal.cost), back.dV1, back.dV2)
+                        iter_rollouts += cfg.n_alphas
+                        t0 = time.perf_counter()
+                        if accepted:
+                            new_cost = float(ls.cost)
+                            alpha_history.append(float(ls.alpha))
+                            decrease = nominal.cost - new_cost
+                            nominal = _Nominal(ls.trajectory.u, ls.trajectory.z, ls.trajectory.x, ls.Z, new_cost)
+                            model = None
+                            failures = 0
+                            mu = max(mu / cfg.mu_factor, cfg.mu_min)
+                            if decrease < cfg.rtol * abs(new_cost):
+                                stop = (Status.CONVERGED, f"relative cost decrease below rtol={cfg.rtol:g}")
+                        else:
+                            alpha_history.append(0.0)
+                            failures += 1
+                            mu = max(mu * cfg.mu_factor**failures, cfg.mu_min)
+                            predicted = float(ls.expected[0])
+                            if predicted < cfg.rtol * abs(nominal.cost):
+                                stop = (
+                                    Status.CONVERGED,
+                                    f"no step lowers the cost and the predicted decrease {predicted:.3g} "
+                                    f"is below rtol x cost",
+                                )
+                            elif mu > cfg.mu_max:
+                                stop = (
+                                    Status.LINE_SEARCH_FAILED,
+                                    f"no step size lowered the cost; regularisation passed mu_max={cfg.mu_max:g}",
+                                )
+                        cost_history.append(nominal.cost)
+                        phase_s["host"] += time.perf_counter() - t0
+                    rollouts += iter_rollouts
+                compiles.append(watch.compiles + (first_compiles if iteration == 1 else 0))
+                if callback is not None:
+                    wall = time.perf_counter() - t_iter
+                    callback(
+                        IterationInfo(
+                            iteration=iteration,
+                            cost=nominal.cost,
+                            alpha=alpha_history[-1] if alpha_history else 0.0,
+                            mu=mu,
+                            grad_norm=grad_history[-1] if grad_history else float("nan"),
+                            accepted=bool(alpha_history and alpha_history[-1] > 0),
+                            rollouts=iter_rollouts,
+                            rollouts_per_s=iter_rollouts / wall if wall > 0 else float("nan"),
+                            wall_s=wall,
+                        )
+                    )
+                if stop is not None:
+                    status, message = stop
+                    break
+
+    wall = time.perf_counter() - t_start
+    phase_s["host"] = max(0.0, wall - total_watch.seconds - sum(v for k, v in phase_s.items() if k != "host"))
+    K = np.asarray(back.K) if back is not None else np.zeros((dims.horizon, dims.nu, nZ))
+    k = np.asarray(back.k) if back is not None else np.zeros((dims.horizon, dims.nu))
+    x_bar = np.asarray(nominal.x_bar)
+    return Result(
+        method=method,
+        task=env.name,
+        status=status,
+        message=message,
+        controls=np.asarray(nominal.u_bar),
+        observations=x_bar @ np.asarray(env.data.C).T,
+        states=x_bar,
+        info_states=np.asarray(nominal.Z_bar),
+        K=K,
+        k=k,
+        q=q,
+        cost_history=cost_history,
+        alpha_history=alpha_history,
+        mu_history=mu_history,
+        grad_norm_history=grad_history,
+        iterations=iteration,
+        rollouts=rollouts,
+        wall_s=wall,
+        compile_s=total_watch.seconds,
+        run_s=max(0.0, wall - total_watch.seconds),
+        compiles_per_iteration=compiles,
+        phase_s=phase_s,
+        config=dataclasses.asdict(cfg) | {"q": q},
+        control_dt=env.control_dt,
+        observation_labels=env.observation_labels,
+        state_labels=env.state_labels,
+    )
+
+
+def _initial_controls(u_init, dims) -> jnp.ndarray:
+    if u_init is None:
+        return jnp.zeros((dims.horizon, dims.nu))
+    u = np.asarray(u_init, dtype=float)
+    if u.shape != (dims.horizon, dims.nu):
+        raise ConfigError(
+            f"`u_init` must have shape [horizon, nu] = [{dims.horizon}, {dims.nu}]; got {u.shape}."
+        )
+    if not np.all(np.isfinite(u)):
+        raise ConfigError("`u_init` holds non-finite numbers; use finite initial controls.")
+    return jnp.asarray(u)

@@ -1,0 +1,93 @@
+"""Least-squares identification of the time-varying ARMA model (LTV-ARMA sysid).
+
+From n_s rollouts about the nominal, at every step t = 0 .. T-1 fit
+
+  dz_{t+1}^(j) = Theta_t [dZ_t^(j); du_t^(j)] + residual,   j = 1 .. n_s
+
+with dZ = Z - Z_bar the information-state deviation and du = u - u_bar the
+applied control deviation (perturbation plus any feedback), then assemble
+(A_t, B_t) of Eq. (c4tab). Regressing on the applied deviation makes the fit
+return the open-loop model directly, also when the rollouts carry feedback
+u = u_bar + du + K dZ: that is Lemma 1's recovery A = (A + B K) - B K done in
+one step, because [dZ, K dZ + du] is an invertible linear map of [dZ, du].
+
+Numerics (see docs/algorithm.md): columns are scaled to unit RMS, then the
+minimum-norm solution is taken from an SVD, discarding singular values below
+``rcond`` times the largest. Columns that are exactly zero (the rest history
+before t = 0, the deterministic z_0) get zero weight instead of a NaN; the
+Python driver refuses n_s below the number of regressors before tracing.
+
+Shapes: z [n_s, T+1, nz], u [n_s, T, nu]; Theta [T, nz, nZ + nu];
+A [T, nZ, nZ], B [T, nZ, nu].
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .info_state import companion, info_states
+
+
+class LinearModel(NamedTuple):
+    """dZ_{t+1} = A_t dZ_t + B_t du_t, t = 0 .. T-1."""
+
+    A: jnp.ndarray  # [T, nZ, nZ]
+    B: jnp.ndarray  # [T, nZ, nu]
+
+
+class FitReport(NamedTuple):
+    """Diagnostics of the least-squares fit."""
+
+    residual_rms: jnp.ndarray  # [T] RMS of the fit residual of dz_{t+1}
+    target_rms: jnp.ndarray  # [T] RMS of dz_{t+1} itself
+    rank: jnp.ndarray  # [T] numerical rank kept
+    all_finite: jnp.ndarray  # scalar bool: every rollout finite
+
+
+def least_squares(X: jnp.ndarray, Y: jnp.ndarray, rcond: jnp.ndarray):
+    """Minimum-norm least squares Y ~ X W with column scaling; X [n, p], Y [n, m].
+
+    Returns (W [p, m], rank).
+    """
+    scale = jnp.sqrt(jnp.mean(X * X, axis=0))
+    scale = jnp.where(scale > 0, scale, 1.0)
+    U, s, Vt = jnp.linalg.svd(X / scale, full_matrices=False)
+    keep = s > rcond * s[0]
+    s_inv = jnp.where(keep, 1.0 / jnp.where(keep, s, 1.0), 0.0)
+    W = Vt.T @ (s_inv[:, None] * (U.T @ Y))
+    return W / scale[:, None], jnp.sum(keep)
+
+
+def regression_data(z, u, z_bar, u_bar, q: int):
+    """Time-major regressors X [T, n_s, nZ + nu] and targets Y [T, n_s, nz]."""
+    Z = jax.vmap(info_states, in_axes=(0, 0, None))(z, u, q)  # [n_s, T+1, nZ]
+    Z_bar = info_states(z_bar, u_bar, q)
+    dZ = Z[:, :-1] - Z_bar[:-1]
+    du = u - u_bar
+    dz_next = z[:, 1:] - z_bar[1:]
+    X = jnp.concatenate([dZ, du], axis=-1).transpose(1, 0, 2)
+    Y = dz_next.transpose(1, 0, 2)
+    return X, Y
+
+
+@functools.partial(jax.jit, static_argnames=("q",))
+def fit_information_model(z, u, z_bar, u_bar, q: int, rcond) -> tuple[LinearModel, FitReport]:
+    """Fit Theta_t by least squares at every step (a ``lax.scan`` over time)."""
+    nz, nu = z.shape[-1], u.shape[-1]
+    all_finite = jnp.all(jnp.isfinite(z)) & jnp.all(jnp.isfinite(u))
+    X, Y = regression_data(z, u, z_bar, u_bar, q)
+
+    def step(_, xy):
+        X_t, Y_t = xy
+        W, rank = least_squares(X_t, Y_t, rcond)
+        theta = W.T  # [nz, nZ + nu]
+        A_t, B_t = companion(theta, nz, nu, q)
+        res = Y_t - X_t @ W
+        return None, (A_t, B_t, jnp.sqrt(jnp.mean(res**2)), jnp.sqrt(jnp.mean(Y_t**2)), rank)
+
+    _, (A, B, res, tgt, rank) = jax.lax.scan(step, None, (X, Y))
+    return LinearModel(A, B), FitReport(res, tgt, rank, all_finite)

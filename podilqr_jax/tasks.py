@@ -1,0 +1,73 @@
+"""Bundled swing-up tasks: pendulum and cart-pole, fully and partially observed.
+
+| task               | observation                 | q | Q              | QT     | R |
+|--------------------|-----------------------------|---|----------------|--------|---|
+| pendulum-full      | angle, angular rate         | 1 | diag(1, 0.1)   | 100 I  | 2 |
+| pendulum-partial   | angle                       | 2 | 1              | 100    | 2 |
+| cartpole-full      | cart x, angle, both rates   | 1 | 0.1 I          | 5000 I | 1 |
+| cartpole-partial   | cart x, pole angle          | 2 | 0.1 I          | 5000 I | 1 |
+
+Horizon 30 control steps of 0.1 s; start hanging at rest (angle pi), target
+upright at rest (angle 0, cart at 0). Costs and sysid settings follow the
+POD-iLQR authors' reference settings (see docs/tasks.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from typing import Any
+
+from .env import Env
+from .errors import TaskError
+
+MODELS_DIR = os.path.join(os.path.dirname(__file__), "models")
+
+_SYSTEMS: dict[str, dict[str, Any]] = {
+    "pendulum": dict(
+        xml="pendulum.xml",
+        substeps=5,
+        x0={"qpos": [math.pi], "qvel": [0.0]},
+        R=2.0,
+        observations={
+            "full": dict(observation="full", target=[0.0, 0.0], Q=[1.0, 0.1], QT=100.0),
+            "partial": dict(observation={"qpos": ["hinge"]}, target=[0.0], Q=1.0, QT=100.0),
+        },
+        solver=dict(sigma=1e-4, n_s=40),
+    ),
+    "cartpole": dict(
+        xml="cartpole.xml",
+        substeps=10,
+        x0={"qpos": [0.0, math.pi], "qvel": [0.0, 0.0]},
+        R=1.0,
+        observations={
+            "full": dict(observation="full", target=[0.0] * 4, Q=0.1, QT=5000.0),
+            "partial": dict(observation={"qpos": ["slider", "hinge"]}, target=[0.0, 0.0], Q=0.1, QT=5000.0),
+        },
+        solver=dict(sigma=1e-2, n_s=40),
+    ),
+}
+
+TASKS = tuple(f"{system}-{obs}" for system, spec in _SYSTEMS.items() for obs in spec["observations"])
+
+
+def make_task(name: str, *, horizon: int = 30) -> Env:
+    """A bundled task by name, e.g. ``"cartpole-partial"`` (see ``TASKS``)."""
+    system, _, obs = name.partition("-")
+    if system not in _SYSTEMS or obs not in _SYSTEMS[system]["observations"]:
+        raise TaskError(
+            f"Unknown task {name!r}. Bundled tasks: {', '.join(TASKS)}; or give the path "
+            "of a task file (.toml or .json, see docs/task_files.md)."
+        )
+    spec = _SYSTEMS[system]
+    env = Env.from_xml(
+        os.path.join(MODELS_DIR, spec["xml"]),
+        substeps=spec["substeps"],
+        horizon=horizon,
+        x0=spec["x0"],
+        R=spec["R"],
+        name=name,
+        **spec["observations"][obs],
+    )
+    return dataclasses.replace(env, solver_defaults=dict(spec["solver"]))
