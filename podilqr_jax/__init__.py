@@ -7,12 +7,19 @@ significant digits of dz, too few for the fit (docs/algorithm.md measures it).
 Set ``PODILQR_X64=0`` before importing to keep JAX's float32 default.
 """
 
+import contextlib as _contextlib
+import io as _io
 import os as _os
 
 import jax as _jax
 
 if _os.environ.get("PODILQR_X64", "1") != "0":
     _jax.config.update("jax_enable_x64", True)
+
+# MJX prints a note to stdout when its optional `warp` backend is absent; keep
+# stdout clean for the CLI's output.
+with _contextlib.redirect_stdout(_io.StringIO()):
+    from mujoco import mjx as _mjx  # noqa: F401
 
 from .backward import BackwardResult as BackwardResult
 from .backward import QuadraticCost as QuadraticCost

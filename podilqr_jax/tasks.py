@@ -34,7 +34,7 @@ _SYSTEMS: dict[str, dict[str, Any]] = {
             "full": dict(observation="full", target=[0.0, 0.0], Q=[1.0, 0.1], QT=100.0),
             "partial": dict(observation={"qpos": ["hinge"]}, target=[0.0], Q=1.0, QT=100.0),
         },
-        solver=dict(sigma=1e-4, n_s=40),
+        solver=dict(sigma=1e-5, n_s=40),
     ),
     "cartpole": dict(
         xml="cartpole.xml",

@@ -1,0 +1,201 @@
+"""The ``podilqr`` command line.
+
+  podilqr solve TASK [--method pod-ilqr|model-based] [--compare]
+                     [--set key=value ...] [--out result.json] [--no-plots]
+  podilqr tasks
+
+TASK is a bundled task name (``podilqr tasks`` lists them) or a task file
+(.toml / .json, see docs/task_files.md). Errors in the input print one
+paragraph and exit with status 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import textwrap
+from typing import Any, Optional, Sequence
+
+EXIT_INPUT_ERROR = 2
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return EXIT_INPUT_ERROR
+    from .errors import PodIlqrError
+
+    try:
+        return args.func(args)
+    except PodIlqrError as exc:
+        _fail(str(exc))
+        return EXIT_INPUT_ERROR
+    except KeyboardInterrupt:
+        print("\ninterrupted", file=sys.stderr)
+        return 130
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="podilqr", description="Data-based iterative LQR (POD-iLQR) on MJX.")
+    sub = parser.add_subparsers(dest="command")
+    p = sub.add_parser("solve", help="solve a task and write JSON and plots")
+    p.add_argument("task", help="bundled task name (see `podilqr tasks`) or a .toml/.json task file")
+    p.add_argument("--method", choices=("pod-ilqr", "model-based"), default="pod-ilqr")
+    p.add_argument(
+        "--compare", action="store_true", help="also run the model-based reference and report the cost ratio"
+    )
+    p.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="a solver setting or `horizon` (repeatable)"
+    )
+    p.add_argument("--out", default="result.json", help="JSON result path (plots are written beside it)")
+    p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
+    p.add_argument("--quiet", action="store_true", help="no live progress")
+    p.set_defaults(func=_cmd_solve)
+    t = sub.add_parser("tasks", help="list the bundled tasks")
+    t.set_defaults(func=_cmd_tasks)
+    return parser
+
+
+def _fail(message: str) -> None:
+    print(textwrap.fill("error: " + message, width=100), file=sys.stderr)
+
+
+def _parse_sets(items: Sequence[str]) -> dict[str, Any]:
+    from .errors import ConfigError
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--set expects KEY=VALUE (e.g. --set sigma=1e-4); got {item!r}.")
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        out[key.strip()] = value
+    return out
+
+
+def _check_writable(path: str) -> None:
+    from .errors import ConfigError
+
+    directory = os.path.dirname(os.path.abspath(path)) or "."
+    try:
+        os.makedirs(directory, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"Cannot create the output folder {directory!r}: {exc.strerror}. Choose another --out.") from None
+    if not os.access(directory, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        raise ConfigError(f"The output path {path!r} is not writable. Choose another --out.")
+    if os.path.isdir(path):
+        raise ConfigError(f"--out {path!r} is a folder; give a file name such as {os.path.join(path, 'result.json')!r}.")
+
+
+def load_env(task: str):
+    """A bundled task by name, or a task file by path."""
+    from .taskfile import load_task
+    from .tasks import make_task
+
+    if task.endswith((".toml", ".json")) or os.path.sep in task:
+        return load_task(task)
+    return make_task(task)
+
+
+def _cmd_tasks(args: argparse.Namespace) -> int:
+    from .tasks import TASKS
+
+    for name in TASKS:
+        print(name)
+    return 0
+
+
+def _cmd_solve(args: argparse.Namespace) -> int:
+    import podilqr_jax as pj
+
+    sets = _parse_sets(args.set)
+    _check_writable(args.out)
+    env = load_env(args.task)
+    horizon = sets.pop("horizon", None)
+    if horizon is not None:
+        env = env.replace(horizon=horizon)
+    cfg = pj.default_config(env, **sets)
+
+    runs = [args.method] + (["model-based"] if args.compare and args.method != "model-based" else [])
+    results = []
+    for method in runs:
+        fn = pj.solve if method == "pod-ilqr" else pj.solve_model_based
+        with _Progress(method, env.name, cfg.max_iterations, quiet=args.quiet) as progress:
+            results.append(fn(env, cfg, callback=progress.update))
+        print(results[-1].summary(), file=sys.stderr)
+
+    main_result = results[0]
+    payload = main_result.to_dict()
+    if len(results) > 1:
+        payload["model_based_cost"] = results[1].final_cost
+        payload["ratio_to_model_based"] = main_result.final_cost / results[1].final_cost
+        payload["model_based"] = {k: v for k, v in results[1].to_dict().items() if k not in ("K", "k")}
+        print(
+            f"POD-iLQR / model-based cost ratio: {payload['ratio_to_model_based']:.6f}",
+            file=sys.stderr,
+        )
+    from .result import write_json_atomic
+
+    write_json_atomic(args.out, payload)
+    print(f"wrote {args.out}", file=sys.stderr)
+    if not args.no_plots:
+        from .plots import plot_convergence, plot_trajectory
+
+        stem = os.path.splitext(args.out)[0]
+        paths = [
+            plot_convergence(results, stem + "_cost.png"),
+            plot_trajectory(main_result, stem + "_trajectory.png"),
+        ]
+        print("wrote " + ", ".join(paths), file=sys.stderr)
+    return 0 if main_result.status != pj.Status.NONFINITE else 1
+
+
+class _Progress:
+    """Live progress: a rich bar on a terminal, a line every 10 iterations otherwise."""
+
+    def __init__(self, method: str, task: str, total: int, quiet: bool) -> None:
+        from rich.console import Console
+
+        self.console = Console(stderr=True)
+        self.quiet = quiet
+        self.method, self.task, self.total = method, task, total
+        self.bar = None
+
+    def __enter__(self) -> "_Progress":
+        if not self.quiet and self.console.is_terminal:
+            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self.bar = Progress(
+                TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[stats]}"),
+                TimeElapsedColumn(), console=self.console,
+            )
+            self.bar.start()
+            self.bar_id = self.bar.add_task(f"{self.method} {self.task}", total=self.total, stats="")
+        return self
+
+    def update(self, info) -> None:
+        if self.quiet:
+            return
+        stats = (
+            f"it {info.iteration:4d}  cost {info.cost:12.6g}  alpha {info.alpha:6.3g}  "
+            f"mu {info.mu:8.2g}  |g| {info.grad_norm:8.2g}  {info.rollouts_per_s:9.0f} rollouts/s"
+        )
+        if self.bar is not None:
+            self.bar.update(self.bar_id, completed=info.iteration, stats=stats)
+        elif info.iteration == 1 or info.iteration % 10 == 0:
+            self.console.print(f"{self.method} {self.task}: {stats}", highlight=False, soft_wrap=True)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,99 @@
+"""The `podilqr` command line: outputs, task files and one-paragraph errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from podilqr_jax.cli import main
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TASK_FILE = os.path.join(REPO, "examples", "tasks", "my_pendulum.toml")
+REQUIRED_KEYS = {"final_cost", "cost_history", "controls", "iterations", "status", "rollouts", "wall_s", "compile_s"}
+
+
+def test_solve_writes_json_and_plots(tmp_path, capsys):
+    out = tmp_path / "sub" / "result.json"
+    code = main(["solve", "pendulum-full", "--set", "max_iterations=4", "--set", "horizon=10", "--out", str(out)])
+    assert code == 0
+    payload = json.loads(out.read_text())
+    assert REQUIRED_KEYS <= set(payload)
+    assert len(payload["controls"]) == 10
+    assert payload["iterations"] == 4 and payload["cost_history"][-1] < payload["cost_history"][0]
+    assert (tmp_path / "sub" / "result_cost.png").stat().st_size > 0
+    assert (tmp_path / "sub" / "result_trajectory.png").stat().st_size > 0
+    assert "pod-ilqr on pendulum-full" in capsys.readouterr().err
+
+
+def test_solve_task_file_with_compare(tmp_path):
+    out = tmp_path / "r.json"
+    code = main(["solve", TASK_FILE, "--compare", "--set", "max_iterations=3", "--out", str(out), "--no-plots"])
+    assert code == 0
+    payload = json.loads(out.read_text())
+    assert payload["task"] == "my-pendulum" and payload["q"] == 2
+    assert payload["model_based_cost"] > 0 and payload["ratio_to_model_based"] > 0
+    assert not (tmp_path / "r_cost.png").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, pattern",
+    [
+        (["solve", "rocket-full"], "Unknown task 'rocket-full'"),
+        (["solve", "pendulum-full", "--set", "sigmaa=1"], "Unknown solver setting"),
+        (["solve", "pendulum-full", "--set", "sigma"], "--set expects KEY=VALUE"),
+        (["solve", "pendulum-full", "--set", "n_s=1"], "below the 3 regressors"),
+        (["solve", "missing/task.toml"], "does not exist"),
+    ],
+)
+def test_input_errors_print_one_paragraph(tmp_path, capsys, argv, pattern):
+    code = main(argv + ["--out", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.startswith("error: ") and pattern in err.replace("\n", " ")
+    assert "Traceback" not in err
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_bad_task_file_values(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        open(TASK_FILE).read().replace("QT = 100.0", "QT = nan").replace('"my_pendulum.xml"', '"%s"' % os.path.join(
+            os.path.dirname(TASK_FILE), "my_pendulum.xml"))
+    )
+    assert main(["solve", str(bad), "--out", str(tmp_path / "r.json")]) == 2
+    assert "non-finite number at `cost.QT`" in capsys.readouterr().err
+
+
+def test_unwritable_output_keeps_existing_file(tmp_path, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    existing = locked / "result.json"
+    existing.write_text("{}")
+    os.chmod(locked, 0o500)
+    try:
+        if os.access(locked, os.W_OK):  # running as root: permissions do not bind
+            pytest.skip("permissions are not enforced for this user")
+        assert main(["solve", "pendulum-full", "--out", str(existing)]) == 2
+        assert "not writable" in capsys.readouterr().err
+        assert existing.read_text() == "{}"
+    finally:
+        os.chmod(locked, 0o700)
+
+
+def test_output_path_is_a_folder(tmp_path, capsys):
+    assert main(["solve", "pendulum-full", "--out", str(tmp_path)]) == 2
+    assert "is a folder" in capsys.readouterr().err
+
+
+def test_console_script_exit_code_and_no_traceback(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "podilqr_jax.cli", "solve", "pendulum-full", "--bogus-option"],
+        capture_output=True, text=True, cwd=tmp_path,
+    )
+    assert proc.returncode == 2
+    assert "unrecognized arguments: --bogus-option" in proc.stderr
+    assert "Traceback" not in proc.stderr and proc.stdout == ""

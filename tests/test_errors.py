@@ -1,0 +1,116 @@
+"""Bad input fails in Python, before tracing, with a clear message."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import pytest
+
+import podilqr_jax as pj
+from podilqr_jax.tasks import MODELS_DIR
+
+PENDULUM = os.path.join(MODELS_DIR, "pendulum.xml")
+
+
+def _write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return str(p)
+
+
+def test_missing_model_file(tmp_path):
+    with pytest.raises(pj.ModelLoadError, match="does not exist"):
+        pj.Env.from_xml(tmp_path / "nope.xml")
+
+
+def test_malformed_xml_reports_mujoco_message(tmp_path):
+    path = _write(tmp_path, "bad.xml", "<mujoco><worldbody><body></mujoco>")
+    with pytest.raises(pj.ModelLoadError, match="XML parse error"):
+        pj.Env.from_xml(path)
+
+
+def test_model_mjx_cannot_load_names_the_feature(tmp_path):
+    xml = (
+        '<mujoco><option><flag energy="enable"/></option><worldbody><body>'
+        '<joint name="j" type="hinge"/><geom size=".1"/></body></worldbody>'
+        '<actuator><motor joint="j"/></actuator></mujoco>'
+    )
+    with pytest.raises(pj.ModelLoadError, match="MJX cannot load.*ENERGY"):
+        pj.Env.from_xml(_write(tmp_path, "energy.xml", xml))
+
+
+def test_model_without_actuators(tmp_path):
+    xml = '<mujoco><worldbody><body><joint type="hinge"/><geom size=".1"/></body></worldbody></mujoco>'
+    with pytest.raises(pj.TaskError, match="no actuators"):
+        pj.Env.from_xml(_write(tmp_path, "noact.xml", xml))
+
+
+def test_unknown_task():
+    with pytest.raises(pj.TaskError, match="Unknown task 'rocket-full'.*pendulum-full"):
+        pj.make_task("rocket-full")
+
+
+@pytest.mark.parametrize(
+    "kwargs, pattern",
+    [
+        (dict(Q=[1.0, 2.0, 3.0]), "`Q` must be a scalar, a diagonal of length 2"),
+        (dict(QT=[[1.0, 2.0], [0.0, 1.0]]), "`QT` must be symmetric"),
+        (dict(Q=[1.0, -1.0]), "`Q` must be positive semi-definite"),
+        (dict(R=0.0), "`R` must be positive definite"),
+        (dict(R=[[1.0, 0.0], [0.0, 1.0]]), "`R` must be a scalar"),
+        (dict(x0=[0.0, 0.0, 0.0]), "`x0` must have length 2"),
+        (dict(x0=[math.nan, 0.0]), "non-finite"),
+        (dict(target=[0.0]), "`target` must have length 2"),
+        (dict(observation=[[1.0, 0.0, 0.0]]), r"shape \[nz, nq \+ nv\] = \[nz, 2\]"),
+        (dict(observation=[[1.0, 0.0], [2.0, 0.0]]), "rank deficient"),
+        (dict(observation={"qpos": ["elbow"]}), "Unknown joint 'elbow'.*hinge"),
+        (dict(observation={"qpos": []}), "size 0"),
+        (dict(observation="everything"), "Unknown observation"),
+        (dict(horizon=0), "`horizon` must be an integer >= 1"),
+        (dict(substeps=-2), "`substeps` must be an integer >= 1"),
+    ],
+)
+def test_bad_task_settings(kwargs, pattern):
+    with pytest.raises(pj.TaskError, match=pattern):
+        pj.Env.from_xml(PENDULUM, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def pendulum_partial():
+    return pj.make_task("pendulum-partial")
+
+
+@pytest.mark.parametrize(
+    "overrides, pattern",
+    [
+        (dict(n_s=3), "`n_s`=3 is below the 4 regressors of the ARMA fit at q=2"),
+        (dict(sigma=0.0), "`sigma` must be > 0"),
+        (dict(sigma=-1e-3), "`sigma` must be > 0"),
+        (dict(q=0), "`q` must be an integer >= 1"),
+        (dict(q=30), "horizon T=30 must exceed q=30"),
+        (dict(max_iterations=0), "`max_iterations` must be an integer >= 1"),
+        (dict(rtol=math.inf), "`rtol` must be a finite number"),
+        (dict(mu_factor=1.0), "`mu_factor` must be > 1"),
+    ],
+)
+def test_bad_solver_settings(pendulum_partial, overrides, pattern):
+    cfg = pj.default_config(pendulum_partial, **overrides)
+    with pytest.raises(pj.ConfigError, match=pattern):
+        pj.solve(pendulum_partial, cfg)
+
+
+def test_unknown_solver_setting(pendulum_partial):
+    with pytest.raises(pj.ConfigError, match="Unknown solver setting.*'sigmaa'.*known settings"):
+        pj.default_config(pendulum_partial, sigmaa=1.0)
+
+
+def test_horizon_not_above_q():
+    env = pj.make_task("cartpole-partial", horizon=2)
+    with pytest.raises(pj.ConfigError, match="horizon T=2 must exceed q=2"):
+        pj.solve(env)
+
+
+def test_bad_initial_controls(pendulum_partial):
+    with pytest.raises(pj.ConfigError, match=r"`u_init` must have shape \[horizon, nu\] = \[30, 1\]"):
+        pj.solve(pendulum_partial, u_init=[[0.0]] * 29)
