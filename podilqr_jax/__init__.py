@@ -40,6 +40,7 @@ from .result import Result as Result
 from .result import Status as Status
 from .rollout import Policy as Policy
 from .rollout import Trajectory as Trajectory
+from .rollout import rollout_batch as rollout_batch
 from .rollout import simulate as simulate
 from .solver import default_config as default_config
 from .solver import solve as solve
@@ -76,6 +77,7 @@ __all__ = [
     "info_states",
     "linearise",
     "make_task",
+    "rollout_batch",
     "simulate",
     "solve",
     "solve_model_based",

@@ -104,9 +104,7 @@ def riccati(model: LinearModel, Z_bar, u_bar, cost: QuadraticCost, mu) -> Backwa
         return (v_new, V_new, lam_new, ok & pd), (k, K, g, dv)
 
     init = (v_T, V_T, v_T, jnp.array(True))
-    (_, _, _, ok), (k, K, g, dv) = jax.lax.scan(
-        step, init, (model.A, model.B, Z_bar[:-1], u_bar), reverse=True
-    )
+    (_, _, _, ok), (k, K, g, dv) = jax.lax.scan(step, init, (model.A, model.B, Z_bar[:-1], u_bar), reverse=True)
     dV = jnp.sum(dv, axis=0)
     return BackwardResult(k, K, dV[0], dV[1], g, jnp.asarray(mu, Z_bar.dtype), ok)
 

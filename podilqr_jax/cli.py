@@ -87,11 +87,15 @@ def _check_writable(path: str) -> None:
     try:
         os.makedirs(directory, exist_ok=True)
     except OSError as exc:
-        raise ConfigError(f"Cannot create the output folder {directory!r}: {exc.strerror}. Choose another --out.") from None
+        raise ConfigError(
+            f"Cannot create the output folder {directory!r}: {exc.strerror}. Choose another --out."
+        ) from None
     if not os.access(directory, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
         raise ConfigError(f"The output path {path!r} is not writable. Choose another --out.")
     if os.path.isdir(path):
-        raise ConfigError(f"--out {path!r} is a folder; give a file name such as {os.path.join(path, 'result.json')!r}.")
+        raise ConfigError(
+            f"--out {path!r} is a folder; give a file name such as {os.path.join(path, 'result.json')!r}."
+        )
 
 
 def load_env(task: str):
@@ -173,8 +177,11 @@ class _Progress:
             from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
             self.bar = Progress(
-                TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[stats]}"),
-                TimeElapsedColumn(), console=self.console,
+                TextColumn("{task.description}"),
+                BarColumn(),
+                TextColumn("{task.fields[stats]}"),
+                TimeElapsedColumn(),
+                console=self.console,
             )
             self.bar.start()
             self.bar_id = self.bar.add_task(f"{self.method} {self.task}", total=self.total, stats="")

@@ -204,9 +204,7 @@ class Env:
         allowed = {"horizon", "x0", "target", "Q", "QT", "R", "name"}
         unknown = set(changes) - allowed
         if unknown:
-            raise TaskError(
-                f"Env.replace got unknown field(s) {sorted(unknown)}; allowed: {sorted(allowed)}."
-            )
+            raise TaskError(f"Env.replace got unknown field(s) {sorted(unknown)}; allowed: {sorted(allowed)}.")
         d = self.data
         kwargs = dict(
             observation=np.asarray(d.C),
@@ -301,15 +299,10 @@ def _index_of(m: mujoco.MjModel, kind: str, entry: Any) -> list[int]:
         j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, entry)
         if j < 0:
             names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, i) for i in range(m.njnt)]
-            raise TaskError(
-                f"Unknown joint {entry!r} in the {kind} observation; the model's "
-                f"joints are {names}."
-            )
+            raise TaskError(f"Unknown joint {entry!r} in the {kind} observation; the model's joints are {names}.")
         adr = (m.jnt_qposadr if kind == "qpos" else m.jnt_dofadr)[j]
         return list(range(adr, adr + _joint_width(m, j, kind)))
-    raise TaskError(
-        f"Observation entries must be indices or joint names; got {entry!r} in {kind}."
-    )
+    raise TaskError(f"Observation entries must be indices or joint names; got {entry!r} in {kind}.")
 
 
 def _observation_matrix(m: mujoco.MjModel, observation: Any) -> tuple[np.ndarray, tuple[str, ...]]:
@@ -331,17 +324,13 @@ def _observation_matrix(m: mujoco.MjModel, observation: Any) -> tuple[np.ndarray
     if isinstance(observation, Mapping):
         unknown = set(observation) - {"qpos", "qvel"}
         if unknown:
-            raise TaskError(
-                f"Observation mapping has unknown key(s) {sorted(unknown)}; use 'qpos' and/or 'qvel'."
-            )
+            raise TaskError(f"Observation mapping has unknown key(s) {sorted(unknown)}; use 'qpos' and/or 'qvel'.")
         rows: list[int] = []
         for kind, offset in (("qpos", 0), ("qvel", nq)):
             for entry in observation.get(kind, []) or []:
                 rows += [offset + i for i in _index_of(m, kind, entry)]
         if not rows:
-            raise TaskError(
-                "The observation selects nothing (size 0); list at least one qpos or qvel entry."
-            )
+            raise TaskError("The observation selects nothing (size 0); list at least one qpos or qvel entry.")
         if len(set(rows)) != len(rows):
             raise TaskError(f"The observation selects some entry twice: {rows}; list each once.")
         C = np.eye(nx)[rows]
@@ -349,8 +338,7 @@ def _observation_matrix(m: mujoco.MjModel, observation: Any) -> tuple[np.ndarray
     C = np.asarray(observation, dtype=float)
     if C.ndim != 2 or C.shape[1] != nx or C.shape[0] < 1:
         raise TaskError(
-            f"The observation matrix C must have shape [nz, nq + nv] = [nz, {nx}] with "
-            f"nz >= 1; got shape {C.shape}."
+            f"The observation matrix C must have shape [nz, nq + nv] = [nz, {nx}] with nz >= 1; got shape {C.shape}."
         )
     if not np.all(np.isfinite(C)):
         raise TaskError("The observation matrix C holds non-finite numbers; use finite values.")
@@ -368,9 +356,7 @@ def _vector(name: str, value: Any, n: int, what: str) -> np.ndarray:
     except (TypeError, ValueError):
         raise TaskError(f"`{name}` must be a list of numbers; got {value!r}.") from None
     if v.shape != (n,):
-        raise TaskError(
-            f"`{name}` must have length {n} ({what}); got length {v.size}: {value!r}."
-        )
+        raise TaskError(f"`{name}` must have length {n} ({what}); got length {v.size}: {value!r}.")
     if not np.all(np.isfinite(v)):
         raise TaskError(f"`{name}` holds non-finite numbers ({value!r}); use finite values.")
     return v
@@ -384,9 +370,7 @@ def _start_state(m: mujoco.MjModel, x0: Any) -> np.ndarray:
         unknown = set(x0) - {"qpos", "qvel"}
         if unknown:
             raise TaskError(f"`x0` has unknown key(s) {sorted(unknown)}; use 'qpos' and 'qvel'.")
-        qpos = (
-            _vector("x0.qpos", x0["qpos"], nq, "nq") if "qpos" in x0 else np.array(m.qpos0, dtype=float)
-        )
+        qpos = _vector("x0.qpos", x0["qpos"], nq, "nq") if "qpos" in x0 else np.array(m.qpos0, dtype=float)
         qvel = _vector("x0.qvel", x0["qvel"], nv, "nv") if "qvel" in x0 else np.zeros(nv)
         return np.concatenate([qpos, qvel])
     return _vector("x0", x0, nq + nv, "nq + nv: qpos then qvel")
@@ -405,8 +389,7 @@ def _cost_matrix(name: str, value: Any, n: int, what: str, definite: bool) -> np
         M = a.copy()
     else:
         raise TaskError(
-            f"`{name}` must be a scalar, a diagonal of length {n} or a matrix [{n}, {n}] "
-            f"({what}); got shape {a.shape}."
+            f"`{name}` must be a scalar, a diagonal of length {n} or a matrix [{n}, {n}] ({what}); got shape {a.shape}."
         )
     if not np.all(np.isfinite(M)):
         raise TaskError(f"`{name}` holds non-finite numbers; use finite values.")
@@ -420,8 +403,6 @@ def _cost_matrix(name: str, value: Any, n: int, what: str, definite: bool) -> np
         )
     if not definite and eig.min() < -1e-12 * max(1.0, abs(eig).max()):
         raise TaskError(
-            f"`{name}` must be positive semi-definite (smallest eigenvalue {eig.min():g}); "
-            "use non-negative weights."
+            f"`{name}` must be positive semi-definite (smallest eigenvalue {eig.min():g}); use non-negative weights."
         )
     return M
-

@@ -72,9 +72,7 @@ def companion(theta: jnp.ndarray, nz: int, nu: int, q: int) -> tuple[jnp.ndarray
         B = B.at[q * nz : q * nz + nu].set(jnp.eye(nu, dtype=theta.dtype))
         # older controls move down one slot
         if q > 2:
-            A = A.at[q * nz + nu :, q * nz : q * nz + (q - 2) * nu].set(
-                jnp.eye((q - 2) * nu, dtype=theta.dtype)
-            )
+            A = A.at[q * nz + nu :, q * nz : q * nz + (q - 2) * nu].set(jnp.eye((q - 2) * nu, dtype=theta.dtype))
     return A, B
 
 

@@ -56,9 +56,7 @@ def line_search(
         traj.z, traj.u, data.z_target, data.Q, data.QT, data.R
     )
     finite = (
-        jnp.isfinite(cost)
-        & jnp.all(jnp.isfinite(traj.z), axis=(1, 2))
-        & jnp.all(jnp.isfinite(traj.u), axis=(1, 2))
+        jnp.isfinite(cost) & jnp.all(jnp.isfinite(traj.z), axis=(1, 2)) & jnp.all(jnp.isfinite(traj.u), axis=(1, 2))
     )
     cost = jnp.where(finite, cost, jnp.inf)
     expected = -(alphas * dV1 + alphas**2 * dV2)

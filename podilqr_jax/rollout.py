@@ -114,6 +114,12 @@ def simulate(
     return jax.vmap(one, in_axes=(in_offset, in_du))(offset, du)
 
 
+rollout_batch = jax.jit(simulate, static_argnames=("dims", "q", "record_state"))
+rollout_batch.__doc__ = """Jitted :func:`simulate`: a batch of rollouts for given perturbations ``du``
+[B, T, nu] (and/or offsets), returning observations z [B, T+1, nz] and applied
+controls u [B, T, nu] (and states x when ``record_state``)."""
+
+
 @functools.partial(jax.jit, static_argnames=("dims", "q", "n_s"))
 def perturbation_rollouts(
     dims: EnvDims, q: int, n_s: int, data: EnvData, policy: Policy, key: jax.Array, sigma: jnp.ndarray

@@ -292,9 +292,7 @@ def _initial_controls(u_init, dims) -> jnp.ndarray:
         return jnp.zeros((dims.horizon, dims.nu))
     u = np.asarray(u_init, dtype=float)
     if u.shape != (dims.horizon, dims.nu):
-        raise ConfigError(
-            f"`u_init` must have shape [horizon, nu] = [{dims.horizon}, {dims.nu}]; got {u.shape}."
-        )
+        raise ConfigError(f"`u_init` must have shape [horizon, nu] = [{dims.horizon}, {dims.nu}]; got {u.shape}.")
     if not np.all(np.isfinite(u)):
         raise ConfigError("`u_init` holds non-finite numbers; use finite initial controls.")
     return jnp.asarray(u)

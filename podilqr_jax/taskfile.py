@@ -7,6 +7,7 @@ task file; see docs/task_files.md for a worked example)::
     model = "pendulum.xml"        # required: an MJCF file
     substeps = 5                  # physics steps per control step
     horizon = 30                  # control steps T
+    target = [0.0]                # z*, length nz (before the first [table]!)
 
     [observation]                 # or observation = "full" / "qpos"
     qpos = ["hinge"]              # joint names or indices
@@ -16,8 +17,6 @@ task file; see docs/task_files.md for a worked example)::
     [start]                       # x0; default: the model's qpos0 at rest
     qpos = [3.14159]
     qvel = [0.0]
-
-    target = [0.0]                # z*, length nz
 
     [cost]
     Q = 1.0                       # scalar, diagonal list or matrix
@@ -35,8 +34,9 @@ import dataclasses
 import json
 import math
 import os
-import tomllib
 from typing import Any
+
+import tomllib
 
 from .config import SolverConfig
 from .env import Env
@@ -79,7 +79,7 @@ def task_from_spec(spec: dict[str, Any], base_dir: str, default_name: str = "tas
     if unknown:
         raise TaskError(f"Unknown key(s) {sorted(unknown)} in the task file; known keys: {sorted(_TOP_KEYS)}.")
     if "model" not in spec:
-        raise TaskError("The task file needs `model = \"path/to/model.xml\"` (relative to the task file).")
+        raise TaskError('The task file needs `model = "path/to/model.xml"` (relative to the task file).')
     cost = spec.get("cost", {})
     if not isinstance(cost, dict) or set(cost) - _COST_KEYS:
         raise TaskError(f"[cost] must be a table with keys among {sorted(_COST_KEYS)}; got {cost!r}.")
@@ -91,7 +91,14 @@ def task_from_spec(spec: dict[str, Any], base_dir: str, default_name: str = "tas
         obs = spec["observation"]
         kwargs["observation"] = obs["C"] if isinstance(obs, dict) and set(obs) == {"C"} else obs
     if "start" in spec:
-        kwargs["x0"] = spec["start"]
+        start = spec["start"]
+        if isinstance(start, dict) and set(start) - {"qpos", "qvel"}:
+            raise TaskError(
+                f"[start] has unknown key(s) {sorted(set(start) - {'qpos', 'qvel'})}; it takes `qpos` and `qvel`. "
+                "In TOML, keys written after a [table] header belong to that table: put top-level keys "
+                "such as `target` before the first [table]."
+            )
+        kwargs["x0"] = start
     if "target" in spec:
         kwargs["target"] = spec["target"]
     kwargs.update(cost)

@@ -61,8 +61,10 @@ def test_input_errors_print_one_paragraph(tmp_path, capsys, argv, pattern):
 def test_bad_task_file_values(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text(
-        open(TASK_FILE).read().replace("QT = 100.0", "QT = nan").replace('"my_pendulum.xml"', '"%s"' % os.path.join(
-            os.path.dirname(TASK_FILE), "my_pendulum.xml"))
+        open(TASK_FILE)
+        .read()
+        .replace("QT = 100.0", "QT = nan")
+        .replace('"my_pendulum.xml"', '"%s"' % os.path.join(os.path.dirname(TASK_FILE), "my_pendulum.xml"))
     )
     assert main(["solve", str(bad), "--out", str(tmp_path / "r.json")]) == 2
     assert "non-finite number at `cost.QT`" in capsys.readouterr().err
@@ -92,7 +94,9 @@ def test_output_path_is_a_folder(tmp_path, capsys):
 def test_console_script_exit_code_and_no_traceback(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-m", "podilqr_jax.cli", "solve", "pendulum-full", "--bogus-option"],
-        capture_output=True, text=True, cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
     )
     assert proc.returncode == 2
     assert "unrecognized arguments: --bogus-option" in proc.stderr

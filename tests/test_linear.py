@@ -359,9 +359,7 @@ def test_first_backward_pass_equals_finite_horizon_lqr(u_bar_kind):
     assert rel_err(res.grad, g_ref) < LQR_RTOL
 
     # the jitted driver with mu_min = 0 gives the same first pass
-    res2 = backward_pass(
-        model, jnp.asarray(x_bar), jnp.asarray(u_bar), cost, 0.0, Regularisation(0.0, 1e10, 10.0)
-    )
+    res2 = backward_pass(model, jnp.asarray(x_bar), jnp.asarray(u_bar), cost, 0.0, Regularisation(0.0, 1e10, 10.0))
     assert bool(res2.ok) and float(res2.mu) == 0.0
     for name in ("k", "K", "dV1", "dV2", "grad"):
         np.testing.assert_allclose(getattr(res2, name), getattr(res, name), rtol=1e-12, atol=1e-14)
@@ -413,9 +411,7 @@ def test_non_finite_model_returns_not_ok_and_zero_gains(bad):
     F[3, 1, 2] = bad
     model = LinearModel(jnp.asarray(F), jnp.asarray(G))
     cost = QuadraticCost(jnp.eye(nx), jnp.zeros(nx), jnp.asarray(Q), jnp.asarray(QT), jnp.asarray(R))
-    res = backward_pass(
-        model, jnp.asarray(x_bar), jnp.asarray(u_bar), cost, 0.0, Regularisation(1e-6, 1e10, 10.0)
-    )
+    res = backward_pass(model, jnp.asarray(x_bar), jnp.asarray(u_bar), cost, 0.0, Regularisation(1e-6, 1e10, 10.0))
     assert not bool(res.ok)
     for name in ("k", "K", "dV1", "dV2", "grad"):
         val = np.asarray(getattr(res, name))
