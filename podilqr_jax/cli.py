@@ -158,7 +158,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
             plot_trajectory(main_result, stem + "_trajectory.png"),
         ]
         print("wrote " + ", ".join(paths), file=sys.stderr)
-    return 0 if main_result.status != pj.Status.NONFINITE else 1
+    return 1 if main_result.status in (pj.Status.NONFINITE, pj.Status.NO_RESPONSE) else 0
 
 
 class _Progress:

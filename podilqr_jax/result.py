@@ -8,7 +8,7 @@ import json
 import math
 import os
 import tempfile
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -20,6 +20,7 @@ class Status(str, enum.Enum):
     MAX_ITERATIONS = "max_iterations"
     LINE_SEARCH_FAILED = "line_search_failed"
     NONFINITE = "nonfinite"
+    NO_RESPONSE = "no_response"
 
     def __str__(self) -> str:
         return self.value
@@ -156,9 +157,3 @@ def _jsonable(obj: Any) -> Any:
         return _jsonable(obj.item())
     return obj
 
-
-def status_from_string(s: str) -> Optional[Status]:
-    try:
-        return Status(s)
-    except ValueError:
-        return None

@@ -9,8 +9,8 @@ observations and applied controls (see ``info_state``). Sysid rollouts use
 ``offset = 0`` and ``du ~ N(0, sigma^2 I)``; line-search rollouts use
 ``offset = alpha k`` and ``du = 0``; with ``K = 0`` the rollout is open loop.
 
-A batch is one ``vmap`` over the leading axis of whichever of ``offset``,
-``du`` and ``keys`` carry one; nothing loops over rollouts in Python, so the
+A batch is one ``vmap`` over the leading axis of whichever of ``offset`` and
+``du`` carry one; nothing loops over rollouts in Python, so the
 batch axis can be sharded across devices.
 
 Shapes: u_bar [T, nu], Z_bar [T, nZ], K [T, nu, nZ]; per rollout z [T+1, nz],

@@ -47,7 +47,7 @@ PHASES = ("rollouts", "fit", "backward", "line_search", "host")
 
 def default_config(env: Env, **overrides) -> SolverConfig:
     """The task's recommended settings (``env`` defaults), with overrides."""
-    settings = dict(getattr(env, "solver_defaults", {}) or {})
+    settings = dict(env.solver_defaults)
     settings.update(overrides)
     return SolverConfig().replace(**settings)
 
@@ -85,9 +85,17 @@ def solve(
         traj.z.block_until_ready()
         t1 = time.perf_counter()
         model, report = fit_information_model(traj.z, traj.u, nominal.z_bar, nominal.u_bar, q, rcond)
-        finite = bool(report.all_finite)
+        stop = None
+        if not bool(report.all_finite):
+            stop = (Status.NONFINITE, "a sysid rollout or the fitted model is not finite")
+        elif float(jnp.max(report.target_rms)) == 0.0:
+            stop = (
+                Status.NO_RESPONSE,
+                f"the sysid perturbations (sigma={cfg.sigma:g}) left every observation unchanged, "
+                "so the fit sees no dynamics: raise sigma (or use float64, see docs/algorithm.md)",
+            )
         t2 = time.perf_counter()
-        return model, finite, cfg.n_s, {"rollouts": t1 - t0, "fit": t2 - t1}
+        return model, stop, cfg.n_s, {"rollouts": t1 - t0, "fit": t2 - t1}
 
     return _iterate("pod-ilqr", env, env, cfg, q, identify, u_init, callback)
 
@@ -114,7 +122,8 @@ def solve_model_based(
         t0 = time.perf_counter()
         model = linearise(dims, data, nominal.x_bar, nominal.u_bar)
         finite = bool(jnp.all(jnp.isfinite(model.A)) & jnp.all(jnp.isfinite(model.B)))
-        return model, finite, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}
+        stop = None if finite else (Status.NONFINITE, "the exact linearisation is not finite")
+        return model, stop, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}
 
     return _iterate("model-based", env, view, cfg, 1, identify, u_init, callback)
 
@@ -177,11 +186,9 @@ def _iterate(method, env, view, cfg, q, identify, u_init, callback) -> Result:
                     stop, iter_rollouts = None, 0
                     if model is None:
                         key, sub = jax.random.split(key)
-                        model, finite, iter_rollouts, times = identify(sub, nominal)
+                        model, stop, iter_rollouts, times = identify(sub, nominal)
                         for name, secs in times.items():
                             phase_s[name] += secs
-                        if not finite:
-                            stop = (Status.NONFINITE, "a sysid rollout or the fitted model is not finite")
                     if stop is None:
                         t0 = time.perf_counter()
                         back = backward_pass(model, nominal.Z_bar, nominal.u_bar, cost_model, jnp.asarray(mu), reg)

@@ -114,3 +114,11 @@ def test_horizon_not_above_q():
 def test_bad_initial_controls(pendulum_partial):
     with pytest.raises(pj.ConfigError, match=r"`u_init` must have shape \[horizon, nu\] = \[30, 1\]"):
         pj.solve(pendulum_partial, u_init=[[0.0]] * 29)
+
+
+def test_perturbations_below_resolution_are_reported_not_converged():
+    """A sigma so small that x + du rounds back to x leaves every dz exactly zero."""
+    env = pj.make_task("pendulum-partial", horizon=8)
+    result = pj.solve(env, pj.default_config(env, sigma=1e-300))
+    assert result.status == pj.Status.NO_RESPONSE, result.summary()
+    assert "raise sigma" in result.message
