@@ -87,6 +87,7 @@ class Env:
         QT: Any = 100.0,
         R: Any = 1.0,
         name: str | None = None,
+        solver_defaults: Mapping[str, Any] | None = None,
     ) -> "Env":
         """Load an MJCF file and describe the task on it.
 
@@ -107,6 +108,8 @@ class Env:
             symmetric positive semi-definite.
           R: control cost: scalar, diagonal or matrix [nu, nu]; positive
             definite.
+          solver_defaults: the task's recommended solver settings (any
+            ``SolverConfig`` field), used by :func:`default_config`.
         """
         path = os.fspath(path)
         if not os.path.exists(path):
@@ -132,6 +135,7 @@ class Env:
             QT=QT,
             R=R,
             name=name or os.path.splitext(os.path.basename(path))[0],
+            solver_defaults=solver_defaults,
         )
 
     @classmethod
@@ -148,6 +152,7 @@ class Env:
         QT: Any = 100.0,
         R: Any = 1.0,
         name: str = "model",
+        solver_defaults: Mapping[str, Any] | None = None,
     ) -> "Env":
         """Like :meth:`from_xml`, from an already loaded ``mujoco.MjModel``."""
         nq, nv, nu = mj_model.nq, mj_model.nv, mj_model.nu
@@ -195,6 +200,7 @@ class Env:
             data=data,
             observation_labels=labels,
             control_dt=float(mj_model.opt.timestep) * int(substeps),
+            solver_defaults=dict(solver_defaults or {}),
         )
 
     # --------------------------------------------------------------- variations
@@ -216,12 +222,11 @@ class Env:
             QT=np.asarray(d.QT),
             R=np.asarray(d.R),
             name=self.name,
+            solver_defaults=self.solver_defaults,
         )
         kwargs.update(changes)
         env = Env.from_model(self.mj_model, **kwargs)
-        return dataclasses.replace(
-            env, observation_labels=self.observation_labels, solver_defaults=self.solver_defaults
-        )
+        return dataclasses.replace(env, observation_labels=self.observation_labels)
 
     def full_state_view(self) -> "Env":
         """The same task seen through the full state x (C = I).

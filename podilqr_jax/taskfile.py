@@ -30,7 +30,6 @@ task file; see docs/task_files.md for a worked example)::
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import os
@@ -103,13 +102,12 @@ def task_from_spec(spec: dict[str, Any], base_dir: str, default_name: str = "tas
         kwargs["target"] = spec["target"]
     kwargs.update(cost)
     name = str(spec.get("name") or os.path.splitext(os.path.basename(default_name))[0])
-    model_path = os.path.join(base_dir, str(spec["model"]))
-    env = Env.from_xml(model_path, name=name, **kwargs)
     solver = spec.get("solver", {})
     if not isinstance(solver, dict):
         raise TaskError(f"[solver] must be a table of solver settings; got {solver!r}.")
     SolverConfig().replace(**solver)  # unknown keys fail here, with the list of known ones
-    return dataclasses.replace(env, solver_defaults=dict(solver))
+    model_path = os.path.join(base_dir, str(spec["model"]))
+    return Env.from_xml(model_path, name=name, solver_defaults=solver, **kwargs)
 
 
 def _reject_constant(name: str) -> float:

@@ -14,7 +14,6 @@ POD-iLQR authors' reference settings (see docs/tasks.md).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 from typing import Any
@@ -61,13 +60,13 @@ def make_task(name: str, *, horizon: int = 30) -> Env:
             "of a task file (.toml or .json, see docs/task_files.md)."
         )
     spec = _SYSTEMS[system]
-    env = Env.from_xml(
+    return Env.from_xml(
         os.path.join(MODELS_DIR, spec["xml"]),
         substeps=spec["substeps"],
         horizon=horizon,
         x0=spec["x0"],
         R=spec["R"],
         name=name,
+        solver_defaults=spec["solver"],
         **spec["observations"][obs],
     )
-    return dataclasses.replace(env, solver_defaults=dict(spec["solver"]))
