@@ -24,6 +24,7 @@ with _contextlib.redirect_stdout(_io.StringIO()):
 from .backward import BackwardResult as BackwardResult
 from .backward import QuadraticCost as QuadraticCost
 from .backward import backward_pass as backward_pass
+from .config import VARIANTS as VARIANTS
 from .config import SolverConfig as SolverConfig
 from .env import Env as Env
 from .env import EnvData as EnvData
@@ -32,9 +33,12 @@ from .errors import ConfigError as ConfigError
 from .errors import ModelLoadError as ModelLoadError
 from .errors import PodIlqrError as PodIlqrError
 from .errors import TaskError as TaskError
+from .evaluation import TrueCosts as TrueCosts
+from .evaluation import true_costs as true_costs
 from .info_state import companion as companion
 from .info_state import info_states as info_states
 from .model_based import linearise as linearise
+from .noise import NoiseModel as NoiseModel
 from .result import IterationInfo as IterationInfo
 from .result import Result as Result
 from .result import Status as Status
@@ -61,6 +65,7 @@ __all__ = [
     "IterationInfo",
     "LinearModel",
     "ModelLoadError",
+    "NoiseModel",
     "Policy",
     "PodIlqrError",
     "QuadraticCost",
@@ -70,6 +75,8 @@ __all__ = [
     "TASKS",
     "TaskError",
     "Trajectory",
+    "TrueCosts",
+    "VARIANTS",
     "backward_pass",
     "companion",
     "default_config",
@@ -81,4 +88,5 @@ __all__ = [
     "simulate",
     "solve",
     "solve_model_based",
+    "true_costs",
 ]

@@ -1,7 +1,10 @@
 """The ``podilqr`` command line.
 
   podilqr solve TASK [--method pod-ilqr|model-based] [--compare]
+                     [--noise paper|none|initial=S0,process=SW,measurement=SV]
                      [--set key=value ...] [--out result.json] [--no-plots]
+  podilqr reproduce [--quick] [--seeds N] [--systems pendulum,cartpole]
+                    [--no-sweep] [--out DIR]
   podilqr tasks
 
 TASK is a bundled task name (``podilqr tasks`` lists them) or a task file
@@ -12,6 +15,7 @@ paragraph and exit with status 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -51,10 +55,24 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="a solver setting or `horizon` (repeatable)"
     )
+    p.add_argument(
+        "--noise",
+        default=None,
+        metavar="SPEC",
+        help="system noise: `paper` (s0=0.01, 10%% process/measurement noise), `none`, or "
+        "initial=S0,process=SW,measurement=SV (standard deviations); pick the algorithm with --set variant=...",
+    )
     p.add_argument("--out", default="result.json", help="JSON result path (plots are written beside it)")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--quiet", action="store_true", help="no live progress")
     p.set_defaults(func=_cmd_solve)
+    r = sub.add_parser("reproduce", help="reproduce the paper's noise study (Fig. 2) and a sigma sweep")
+    r.add_argument("--quick", action="store_true", help="2 seeds, shorter runs, 3-point sweep (minutes on a CPU)")
+    r.add_argument("--seeds", type=int, default=None, help="seeds per variant (default 5, quick 2)")
+    r.add_argument("--systems", default="pendulum,cartpole", help="comma-separated: pendulum, cartpole")
+    r.add_argument("--no-sweep", action="store_true", help="skip the sigma sweep")
+    r.add_argument("--out", default="runs/reproduce", help="output folder (summary.json, figures, table.md)")
+    r.set_defaults(func=_cmd_reproduce)
     t = sub.add_parser("tasks", help="list the bundled tasks")
     t.set_defaults(func=_cmd_tasks)
     return parser
@@ -98,14 +116,44 @@ def _check_writable(path: str) -> None:
         )
 
 
-def load_env(task: str):
-    """A bundled task by name, or a task file by path."""
+def load_env(task: str, noise: Optional[str] = None):
+    """A bundled task by name, or a task file by path; ``noise`` as --noise."""
+    from .config import fully_observed
+    from .noise import NoiseModel
     from .taskfile import load_task
-    from .tasks import make_task
+    from .tasks import PAPER_S0, make_task
 
-    if task.endswith((".toml", ".json")) or os.path.sep in task:
-        return load_task(task)
-    return make_task(task)
+    is_file = task.endswith((".toml", ".json")) or os.path.sep in task
+    env = load_task(task) if is_file else make_task(task)
+    if noise is None:
+        return env
+    spec = _parse_noise(noise)
+    if spec == "paper":
+        spec = NoiseModel.paper(PAPER_S0, partial=not fully_observed(env))
+    if not is_file:  # a bundled task: its noisy solver defaults come with the noise
+        return make_task(task, noise=spec)
+    return env.replace(noise=spec)
+
+
+def _parse_noise(text: str):
+    from .errors import TaskError
+    from .noise import NoiseModel
+
+    text = text.strip()
+    if text in ("paper", "none"):
+        return "paper" if text == "paper" else NoiseModel()
+    fields: dict[str, Any] = {}
+    for item in text.split(","):
+        key, sep, raw = item.partition("=")
+        try:
+            fields[key.strip()] = float(raw)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise TaskError(
+                f"--noise expects `paper`, `none` or initial=S0,process=SW,measurement=SV (numbers); got {text!r}."
+            )
+    return NoiseModel.from_any(fields)
 
 
 def _cmd_tasks(args: argparse.Namespace) -> int:
@@ -116,12 +164,40 @@ def _cmd_tasks(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from .errors import ConfigError
+    from .reproduce import SYSTEMS, StudySettings, run_study
+
+    settings = StudySettings.quick() if args.quick else StudySettings()
+    systems = tuple(s.strip() for s in args.systems.split(",") if s.strip())
+    unknown = [s for s in systems if s not in SYSTEMS]
+    if unknown or not systems:
+        raise ConfigError(f"--systems takes a comma-separated subset of {', '.join(SYSTEMS)}; got {args.systems!r}.")
+    if args.seeds is not None and args.seeds < 1:
+        raise ConfigError(f"--seeds must be >= 1; got {args.seeds}.")
+    changes: dict[str, Any] = {"systems": systems}
+    if args.seeds is not None:
+        changes["seeds"] = args.seeds
+    if args.no_sweep:
+        changes["sweep_factors"] = ()
+    settings = dataclasses.replace(settings, **changes)
+    probe = os.path.join(args.out, "summary.json")
+    _check_writable(probe)
+    print(f"reproducing the paper's study into {args.out} ({settings})", file=sys.stderr)
+    run_study(args.out, settings, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    from .reproduce import format_table, load_rows
+
+    print(format_table(load_rows(probe)))
+    print(f"wrote {args.out}/summary.json, fig2_true_cost.png, sigma_sweep.png, table.md", file=sys.stderr)
+    return 0
+
+
 def _cmd_solve(args: argparse.Namespace) -> int:
     import podilqr_jax as pj
 
     sets = _parse_sets(args.set)
     _check_writable(args.out)
-    env = load_env(args.task)
+    env = load_env(args.task, args.noise)
     horizon = sets.pop("horizon", None)
     if horizon is not None:
         env = env.replace(horizon=horizon)
@@ -138,11 +214,13 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     main_result = results[0]
     payload = main_result.to_dict()
     if len(results) > 1:
+        # Under noise the comparison is the policy's true (noiseless, closed-loop) cost.
         payload["model_based_cost"] = results[1].final_cost
-        payload["ratio_to_model_based"] = main_result.final_cost / results[1].final_cost
+        payload["ratio_to_model_based"] = main_result.final_true_cost / results[1].final_cost
         payload["model_based"] = {k: v for k, v in results[1].to_dict().items() if k not in ("K", "k")}
+        what = "true cost (noiseless, closed loop)" if main_result.noisy else "cost"
         print(
-            f"POD-iLQR / model-based cost ratio: {payload['ratio_to_model_based']:.6f}",
+            f"POD-iLQR {what} / model-based cost: {payload['ratio_to_model_based']:.6f}",
             file=sys.stderr,
         )
     from .result import write_json_atomic
@@ -194,6 +272,8 @@ class _Progress:
             f"it {info.iteration:4d}  cost {info.cost:12.6g}  alpha {info.alpha:6.3g}  "
             f"mu {info.mu:8.2g}  |g| {info.grad_norm:8.2g}  {info.rollouts_per_s:9.0f} rollouts/s"
         )
+        if info.true_cost == info.true_cost and info.true_cost != info.cost:
+            stats += f"  true {info.true_cost:10.6g}"
         if self.bar is not None:
             self.bar.update(self.bar_id, completed=info.iteration, stats=stats)
         elif info.iteration == 1 or info.iteration % 10 == 0:

@@ -15,6 +15,22 @@ from .env import Env
 from .errors import ConfigError
 from .info_state import n_regressors
 
+VARIANTS = ("plain", "feedback", "averaged", "nominal")
+"""The paper's variants (docs/noise.md):
+
+- ``plain``: POD-iLQR as is (open-loop sysid rollouts u = u_bar + du), under
+  whatever noise the task has.
+- ``feedback``: the paper's "modified" POD-iLQR: the sysid rollouts carry the
+  previous backward pass's feedback on their own information-state deviation,
+  u = u_bar + du + K_t (Z_t - Z_bar_t). No gain exists before the first
+  backward pass, so iteration 1 identifies open loop (K = 0), like ``plain``.
+- ``averaged``: ``feedback`` plus brute-force averaging: each perturbation
+  sequence runs ``n_avg`` times and the mean trajectory enters the fit, and
+  every line-search candidate is the mean of ``n_forward`` noisy rollouts.
+- ``nominal``: the same task with all noise switched off (the reference
+  curve), identified with feedback like ``feedback``.
+"""
+
 
 @dataclasses.dataclass(frozen=True)
 class SolverConfig:
@@ -37,7 +53,16 @@ class SolverConfig:
       accept_ratio: accept a step only if the actual decrease is at least this
         fraction of the predicted one (and strictly positive).
       rcond: relative singular-value cut-off of the least-squares fit.
-      seed: PRNG seed of the perturbations (same seed, same result).
+      seed: PRNG seed of the perturbations and of the noise (same seed, same
+        result).
+      variant: one of ``VARIANTS`` (see there): plain, feedback, averaged or
+        nominal.
+      n_avg: repeats of each sysid perturbation sequence averaged before the
+        fit (``averaged`` only); None picks 10 for ``averaged`` and 1 otherwise.
+      n_forward: noisy rollouts averaged into each line-search candidate
+        (``averaged`` only); None picks ``n_s`` for ``averaged``, 1 otherwise.
+      mu_cap: under noise a rejected step never ends the solve: the nominal is
+        re-measured, mu grows but never above mu_cap, and the solve goes on.
     """
 
     q: Optional[int] = None
@@ -54,6 +79,10 @@ class SolverConfig:
     accept_ratio: float = 1e-4
     rcond: float = 1e-10
     seed: int = 0
+    variant: str = "plain"
+    n_avg: Optional[int] = None
+    n_forward: Optional[int] = None
+    mu_cap: float = 1e3
 
     def replace(self, **changes: Any) -> "SolverConfig":
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
@@ -69,8 +98,32 @@ class SolverConfig:
             return self.q
         return 1 if fully_observed(env) else 2
 
+    def resolved_n_avg(self) -> int:
+        if self.n_avg is not None:
+            return self.n_avg
+        return 10 if self.variant == "averaged" else 1
+
+    def resolved_n_forward(self) -> int:
+        if self.n_forward is not None:
+            return self.n_forward
+        return self.n_s if self.variant == "averaged" else 1
+
     def validate(self, env: Env, data_based: bool = True) -> int:
         """Check every setting against the task; returns the q to use."""
+        if self.variant not in VARIANTS:
+            raise ConfigError(
+                f"Unknown variant {self.variant!r}; choose one of {', '.join(VARIANTS)} (see docs/noise.md)."
+            )
+        for name in ("n_avg", "n_forward"):
+            value = getattr(self, name)
+            if value is not None:
+                _int(name, value, 1)
+                if value > 1 and self.variant != "averaged":
+                    raise ConfigError(
+                        f"`{name}`={value} only applies to variant='averaged' (got variant={self.variant!r}); "
+                        f"set variant='averaged' or drop {name}."
+                    )
+        _positive("mu_cap", self.mu_cap)
         _int("n_s", self.n_s, 1)
         _int("max_iterations", self.max_iterations, 1)
         _int("n_alphas", self.n_alphas, 1)

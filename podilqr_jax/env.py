@@ -26,6 +26,7 @@ import numpy as np
 from mujoco import mjx
 
 from .errors import ModelLoadError, TaskError
+from .noise import NoiseLevels, NoiseModel, noise_levels
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +55,7 @@ class EnvData(NamedTuple):
     Q: jnp.ndarray  # [nz, nz] running cost on the observation error
     QT: jnp.ndarray  # [nz, nz] terminal cost
     R: jnp.ndarray  # [nu, nu] control cost
+    noise: NoiseLevels  # standard deviations of dx0, w_t, v_t
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -71,6 +73,7 @@ class Env:
     observation_labels: tuple[str, ...]
     control_dt: float
     solver_defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    noise: NoiseModel = NoiseModel()
 
     # ----------------------------------------------------------------- building
     @classmethod
@@ -88,6 +91,7 @@ class Env:
         R: Any = 1.0,
         name: str | None = None,
         solver_defaults: Mapping[str, Any] | None = None,
+        noise: Any = None,
     ) -> "Env":
         """Load an MJCF file and describe the task on it.
 
@@ -110,6 +114,9 @@ class Env:
             definite.
           solver_defaults: the task's recommended solver settings (any
             ``SolverConfig`` field), used by :func:`default_config`.
+          noise: the system's noise, a :class:`NoiseModel` or a mapping
+            ``{"initial": s0, "process": sw, "measurement": sv}`` of standard
+            deviations. Default: none (a deterministic system).
         """
         path = os.fspath(path)
         if not os.path.exists(path):
@@ -136,6 +143,7 @@ class Env:
             R=R,
             name=name or os.path.splitext(os.path.basename(path))[0],
             solver_defaults=solver_defaults,
+            noise=noise,
         )
 
     @classmethod
@@ -153,6 +161,7 @@ class Env:
         R: Any = 1.0,
         name: str = "model",
         solver_defaults: Mapping[str, Any] | None = None,
+        noise: Any = None,
     ) -> "Env":
         """Like :meth:`from_xml`, from an already loaded ``mujoco.MjModel``."""
         nq, nv, nu = mj_model.nq, mj_model.nv, mj_model.nu
@@ -182,6 +191,7 @@ class Env:
         Qm = _cost_matrix("Q", Q, nz, "nz (observation size)", definite=False)
         QTm = _cost_matrix("QT", QT, nz, "nz (observation size)", definite=False)
         Rm = _cost_matrix("R", R, nu, "nu (number of controls)", definite=True)
+        noise_model = NoiseModel.from_any(noise).validate(nq, nv)
 
         dims = EnvDims(nq=nq, nv=nv, nu=nu, nz=nz, substeps=int(substeps), horizon=int(horizon))
         data = EnvData(
@@ -192,6 +202,7 @@ class Env:
             Q=jnp.asarray(Qm),
             QT=jnp.asarray(QTm),
             R=jnp.asarray(Rm),
+            noise=noise_levels(noise_model, nq + nv, nz),
         )
         return cls(
             name=name,
@@ -201,13 +212,15 @@ class Env:
             observation_labels=labels,
             control_dt=float(mj_model.opt.timestep) * int(substeps),
             solver_defaults=dict(solver_defaults or {}),
+            noise=noise_model,
         )
 
     # --------------------------------------------------------------- variations
     def replace(self, **changes: Any) -> "Env":
         """A copy with some of ``horizon``, ``x0``, ``target``, ``Q``, ``QT``,
-        ``R`` changed (validated as in :meth:`from_model`)."""
-        allowed = {"horizon", "x0", "target", "Q", "QT", "R", "name"}
+        ``R``, ``noise``, ``solver_defaults`` changed (validated as in
+        :meth:`from_model`)."""
+        allowed = {"horizon", "x0", "target", "Q", "QT", "R", "name", "noise", "solver_defaults"}
         unknown = set(changes) - allowed
         if unknown:
             raise TaskError(f"Env.replace got unknown field(s) {sorted(unknown)}; allowed: {sorted(allowed)}.")
@@ -223,6 +236,7 @@ class Env:
             R=np.asarray(d.R),
             name=self.name,
             solver_defaults=self.solver_defaults,
+            noise=self.noise,
         )
         kwargs.update(changes)
         env = Env.from_model(self.mj_model, **kwargs)
@@ -243,6 +257,7 @@ class Env:
             z_target=jnp.asarray(x_target),
             Q=jnp.asarray(C.T @ np.asarray(self.data.Q) @ C),
             QT=jnp.asarray(C.T @ np.asarray(self.data.QT) @ C),
+            noise=self.data.noise._replace(v=jnp.zeros(nx)),
         )
         dims = dataclasses.replace(self.dims, nz=nx)
         labels = _state_labels(self.mj_model)
@@ -252,11 +267,17 @@ class Env:
     def state_labels(self) -> tuple[str, ...]:
         return _state_labels(self.mj_model)
 
+    @property
+    def noisy(self) -> bool:
+        """True when the system has any noise."""
+        return not self.noise.is_zero
+
     def __repr__(self) -> str:
         d = self.dims
+        noise = "" if self.noise.is_zero else f", noise={self.noise}"
         return (
             f"Env({self.name!r}, nq={d.nq}, nv={d.nv}, nu={d.nu}, nz={d.nz}, "
-            f"horizon={d.horizon}, control_dt={self.control_dt:g})"
+            f"horizon={d.horizon}, control_dt={self.control_dt:g}{noise})"
         )
 
 

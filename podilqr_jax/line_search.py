@@ -10,6 +10,13 @@ decrease is at least ``accept_ratio`` times the predicted decrease
 -(alpha dV1 + alpha^2 dV2). The largest accepted alpha wins. With ``k = 0`` and
 ``K = 0`` every candidate is the open-loop rollout of u_bar, which is how the
 driver measures the first nominal without compiling another function.
+
+Under noise (``noisy``) every candidate is a noisy rollout, or the mean of
+``n_fwd`` noisy rollouts (the averaged variant), one batch of
+n_alphas x n_fwd; the driver then also passes alpha = 0 as the last candidate.
+It can never be accepted (its predicted decrease is zero), so when nothing is
+accepted the chosen candidate is a fresh measurement of the current policy:
+that is how the driver re-measures a nominal whose cost was a lucky draw.
 """
 
 from __future__ import annotations
@@ -23,7 +30,8 @@ import jax.numpy as jnp
 from .cost import trajectory_cost
 from .env import EnvData, EnvDims
 from .info_state import info_states
-from .rollout import Policy, Trajectory, simulate
+from .noise import sample_noise
+from .rollout import Policy, Trajectory, average_repeats, simulate
 
 
 class LineSearchResult(NamedTuple):
@@ -36,7 +44,7 @@ class LineSearchResult(NamedTuple):
     expected: jnp.ndarray  # [n_alphas] predicted decrease (positive is good)
 
 
-@functools.partial(jax.jit, static_argnames=("dims", "q"))
+@functools.partial(jax.jit, static_argnames=("dims", "q", "n_fwd", "noisy"))
 def line_search(
     dims: EnvDims,
     q: int,
@@ -48,10 +56,17 @@ def line_search(
     dV1: jnp.ndarray,
     dV2: jnp.ndarray,
     accept_ratio: jnp.ndarray,
+    key: jax.Array,
+    n_fwd: int = 1,
+    noisy: bool = False,
 ) -> LineSearchResult:
     offsets = alphas[:, None, None] * k[None]
+    if n_fwd > 1:
+        offsets = jnp.repeat(offsets, n_fwd, axis=0)
     no_perturbation = jnp.zeros((dims.horizon, dims.nu), k.dtype)
-    traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True)
+    noise = sample_noise(key, data.noise, offsets.shape[0], dims.horizon) if noisy else None
+    traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True, noise=noise)
+    traj = average_repeats(traj, n_fwd)
     cost = jax.vmap(trajectory_cost, in_axes=(0, 0, None, None, None, None))(
         traj.z, traj.u, data.z_target, data.Q, data.QT, data.R
     )

@@ -39,15 +39,25 @@ class IterationInfo:
     rollouts: int
     rollouts_per_s: float
     wall_s: float
+    true_cost: float = float("nan")  # the policy's cost on the noiseless system
 
 
 @dataclasses.dataclass
 class Result:
     """The outcome of :func:`podilqr_jax.solve` or :func:`solve_model_based`.
 
-    Arrays are NumPy (host) arrays. ``K`` and ``k`` are the gains of the last
-    backward pass (u = u_bar + alpha k + K (Z - Z_bar)); ``states`` are the
-    nominal's full MuJoCo states [T+1, nq + nv], ``observations`` its z.
+    Arrays are NumPy (host) arrays. The learnt policy is
+    u_t = controls_t + K_t (Z_t - info_states_t): ``K`` are the gains that go
+    with the nominal (those of the backward pass that produced it), ``k`` the
+    last backward pass's feed-forward step. ``states`` are the nominal's full
+    MuJoCo states [T+1, nq + nv] and ``observations`` their noise-free C x.
+
+    ``cost_history`` is the cost the algorithm sees (under noise: the cost of
+    a noisy nominal). ``true_cost_history`` is the policy's cost run closed
+    loop on the noiseless system and ``open_loop_cost_history`` the nominal
+    controls replayed open loop on it (equal to ``cost_history`` without
+    noise). Under noise a rejected step re-measures the nominal
+    (``remeasured``); ``longest_rejection_streak`` shows a frozen run.
     """
 
     method: str
@@ -76,10 +86,23 @@ class Result:
     control_dt: float
     observation_labels: tuple[str, ...] = ()
     state_labels: tuple[str, ...] = ()
+    variant: str = "plain"
+    noisy: bool = False
+    noise: dict[str, float] = dataclasses.field(default_factory=dict)
+    true_cost_history: list[float] = dataclasses.field(default_factory=list)
+    open_loop_cost_history: list[float] = dataclasses.field(default_factory=list)
+    rejected_steps: int = 0
+    remeasured: int = 0
+    longest_rejection_streak: int = 0
 
     @property
     def final_cost(self) -> float:
         return self.cost_history[-1]
+
+    @property
+    def final_true_cost(self) -> float:
+        """The final policy's cost on the noiseless system (closed loop)."""
+        return self.true_cost_history[-1] if self.true_cost_history else self.final_cost
 
     @property
     def converged(self) -> bool:
@@ -90,11 +113,19 @@ class Result:
         return int(sum(self.compiles_per_iteration[1:]))
 
     def summary(self) -> str:
-        return (
+        text = (
             f"{self.method} on {self.task}: {self.status} after {self.iterations} iterations "
             f"({self.message}); cost {self.cost_history[0]:.6g} -> {self.final_cost:.6g}; "
             f"{self.rollouts} rollouts; {self.wall_s:.2f} s wall ({self.compile_s:.2f} s compiling)"
         )
+        if self.noisy:
+            text += (
+                f"; variant {self.variant} under noise {self.noise}: true cost (policy, closed loop, "
+                f"noiseless) {self.final_true_cost:.6g}, open-loop replay {self.open_loop_cost_history[-1]:.6g}; "
+                f"{self.rejected_steps} rejected steps, longest streak {self.longest_rejection_streak}, "
+                f"nominal re-measured {self.remeasured} times"
+            )
+        return text
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -103,7 +134,16 @@ class Result:
             "status": str(self.status),
             "message": self.message,
             "final_cost": self.final_cost,
+            "final_true_cost": self.final_true_cost,
+            "variant": self.variant,
+            "noisy": self.noisy,
+            "noise": self.noise,
             "cost_history": self.cost_history,
+            "true_cost_history": self.true_cost_history,
+            "open_loop_cost_history": self.open_loop_cost_history,
+            "rejected_steps": self.rejected_steps,
+            "remeasured": self.remeasured,
+            "longest_rejection_streak": self.longest_rejection_streak,
             "alpha_history": self.alpha_history,
             "mu_history": self.mu_history,
             "grad_norm_history": self.grad_norm_history,

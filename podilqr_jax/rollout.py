@@ -9,9 +9,16 @@ observations and applied controls (see ``info_state``). Sysid rollouts use
 ``offset = 0`` and ``du ~ N(0, sigma^2 I)``; line-search rollouts use
 ``offset = alpha k`` and ``du = 0``; with ``K = 0`` the rollout is open loop.
 
-A batch is one ``vmap`` over the leading axis of whichever of ``offset`` and
-``du`` carry one; nothing loops over rollouts in Python, so the
+A batch is one ``vmap`` over the leading axis of whichever of ``offset``,
+``du`` and ``noise`` carry one; nothing loops over rollouts in Python, so the
 batch axis can be sharded across devices.
+
+Noise (see ``noise``): with a :class:`~podilqr_jax.noise.Noise` realisation per
+rollout the start state is x0 + dx_0, the process noise w_t is written into
+``qpos``/``qvel`` after each control step and the measurement noise v_t is
+added to every observation z_t; the information state, the feedback and the
+returned ``z`` use the measured (noisy) observations, ``x`` the true states.
+Without ``noise`` (``None``) the rollout is deterministic and draws nothing.
 
 Shapes: u_bar [T, nu], Z_bar [T, nZ], K [T, nu, nZ]; per rollout z [T+1, nz],
 u [T, nu] and, when recorded, x = [qpos, qvel] [T+1, nx].
@@ -28,6 +35,7 @@ from mujoco import mjx
 
 from .env import EnvData, EnvDims
 from .info_state import initial_info_state, shift
+from .noise import Noise, sample_noise
 
 
 class Policy(NamedTuple):
@@ -66,29 +74,41 @@ def with_state(dims: EnvDims, d, x: jnp.ndarray):
     return d.replace(qpos=x[: dims.nq], qvel=x[dims.nq :])
 
 
-def _rollout_one(dims: EnvDims, q: int, data: EnvData, policy: Policy, offset, du, record_state: bool) -> Trajectory:
+def _rollout_one(
+    dims: EnvDims, q: int, data: EnvData, policy: Policy, offset, du, noise: Optional[Noise], record_state: bool
+) -> Trajectory:
     model = data.model
-    d = with_state(dims, mjx.make_data(model), data.x0)
-    z0 = data.C @ data.x0
+    T = dims.horizon
+    x0 = data.x0 if noise is None else data.x0 + noise.dx0
+    d = with_state(dims, mjx.make_data(model), x0)
+    if noise is None:
+        w = v_next = jnp.zeros((T, 0), x0.dtype)  # nothing to add; keeps one scan body
+        z0 = data.C @ x0
+    else:
+        w, v_next = noise.w, noise.v[1:]
+        z0 = data.C @ x0 + noise.v[0]
     Z0 = initial_info_state(z0, dims.nu, q)
 
     def step(carry, inp):
         d, Z = carry
-        u_bar_t, Z_bar_t, K_t, offset_t, du_t = inp
+        u_bar_t, Z_bar_t, K_t, offset_t, du_t, w_t, v_t = inp
         u = u_bar_t + offset_t + K_t @ (Z - Z_bar_t) + du_t
         d = physics_step(dims, model, d, u)
+        if noise is not None:
+            d = with_state(dims, d, state_of(d) + w_t)
         x = state_of(d)
         z = data.C @ x
+        if noise is not None:
+            z = z + v_t
         Z = shift(Z, z, u, dims.nz, dims.nu, q)
         return (d, Z), (z, u, x if record_state else None)
 
-    T = dims.horizon
     offset = jnp.broadcast_to(offset, (T, dims.nu))
     du = jnp.broadcast_to(du, (T, dims.nu))
-    _, (z, u, x) = jax.lax.scan(step, (d, Z0), (policy.u_bar, policy.Z_bar, policy.K, offset, du))
+    _, (z, u, x) = jax.lax.scan(step, (d, Z0), (policy.u_bar, policy.Z_bar, policy.K, offset, du, w, v_next))
     z = jnp.concatenate([z0[None], z])
     if record_state:
-        x = jnp.concatenate([data.x0[None], x])
+        x = jnp.concatenate([x0[None], x])
     return Trajectory(z, u, x)
 
 
@@ -100,18 +120,32 @@ def simulate(
     offset: jnp.ndarray,
     du: jnp.ndarray,
     record_state: bool = False,
+    noise: Optional[Noise] = None,
 ) -> Trajectory:
     """A batch of rollouts (traceable; call it inside a jitted function).
 
     ``offset`` and ``du`` are each either shared, [T, nu], or per rollout,
-    [B, T, nu]; the batch size B is taken from whichever is batched.
+    [B, T, nu]; ``noise``, when given, is per rollout (leading axis B). The
+    batch size B is taken from whichever is batched.
     """
     in_offset = 0 if offset.ndim == 3 else None
     in_du = 0 if du.ndim == 3 else None
-    if in_offset is None and in_du is None:
-        return _rollout_one(dims, q, data, policy, offset, du, record_state)
+    in_noise = None if noise is None else 0
+    if in_offset is None and in_du is None and in_noise is None:
+        return _rollout_one(dims, q, data, policy, offset, du, None, record_state)
     one = functools.partial(_rollout_one, dims, q, data, policy, record_state=record_state)
-    return jax.vmap(one, in_axes=(in_offset, in_du))(offset, du)
+    return jax.vmap(one, in_axes=(in_offset, in_du, in_noise))(offset, du, noise)
+
+
+def average_repeats(traj: Trajectory, n_avg: int) -> Trajectory:
+    """Mean over consecutive groups of ``n_avg`` rollouts: [B n_avg, ...] -> [B, ...]."""
+    if n_avg == 1:
+        return traj
+
+    def mean(a):
+        return None if a is None else a.reshape((-1, n_avg) + a.shape[1:]).mean(axis=1)
+
+    return Trajectory(mean(traj.z), mean(traj.u), mean(traj.x))
 
 
 rollout_batch = jax.jit(simulate, static_argnames=("dims", "q", "record_state"))
@@ -120,11 +154,28 @@ rollout_batch.__doc__ = """Jitted :func:`simulate`: a batch of rollouts for give
 controls u [B, T, nu] (and states x when ``record_state``)."""
 
 
-@functools.partial(jax.jit, static_argnames=("dims", "q", "n_s"))
+@functools.partial(jax.jit, static_argnames=("dims", "q", "n_s", "n_avg", "noisy"))
 def perturbation_rollouts(
-    dims: EnvDims, q: int, n_s: int, data: EnvData, policy: Policy, key: jax.Array, sigma: jnp.ndarray
+    dims: EnvDims,
+    q: int,
+    n_s: int,
+    data: EnvData,
+    policy: Policy,
+    key: jax.Array,
+    sigma: jnp.ndarray,
+    n_avg: int = 1,
+    noisy: bool = False,
 ) -> Trajectory:
-    """The n_s sysid rollouts: u = u_bar + K dZ + du, du ~ N(0, sigma^2 I)."""
+    """The sysid rollouts: u = u_bar + K dZ + du with du ~ N(0, sigma^2 I).
+
+    ``n_s`` perturbation sequences; with ``n_avg`` > 1 each runs ``n_avg`` times
+    (different noise, one batch of n_s x n_avg rollouts) and the mean of its
+    repeats (observations and applied controls) is returned, [n_s, ...]. With
+    ``noisy`` every rollout draws the noise of ``data.noise``.
+    """
     du = sigma * jax.random.normal(key, (n_s, dims.horizon, dims.nu), dtype=policy.u_bar.dtype)
+    if n_avg > 1:
+        du = jnp.repeat(du, n_avg, axis=0)
+    noise = sample_noise(jax.random.fold_in(key, 1), data.noise, n_s * n_avg, dims.horizon) if noisy else None
     zero = jnp.zeros((dims.horizon, dims.nu), policy.u_bar.dtype)
-    return simulate(dims, q, data, policy, zero, du)
+    return average_repeats(simulate(dims, q, data, policy, zero, du, noise=noise), n_avg)

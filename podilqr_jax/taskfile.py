@@ -23,9 +23,15 @@ task file; see docs/task_files.md for a worked example)::
     QT = 100.0
     R = 2.0
 
+    [noise]                       # optional: standard deviations (default none)
+    initial = 0.01                # start-state deviation s0
+    process = 0.001               # w_t, added to qpos/qvel after each control step
+    measurement = 0.001           # v_t, added to each observation
+
     [solver]                      # any SolverConfig field
     sigma = 1e-5
     n_s = 40
+    # variant = "feedback"        # plain | feedback | averaged | nominal
 """
 
 from __future__ import annotations
@@ -41,7 +47,7 @@ from .config import SolverConfig
 from .env import Env
 from .errors import TaskError
 
-_TOP_KEYS = {"name", "model", "substeps", "horizon", "observation", "start", "target", "cost", "solver"}
+_TOP_KEYS = {"name", "model", "substeps", "horizon", "observation", "start", "target", "cost", "solver", "noise"}
 _COST_KEYS = {"Q", "QT", "R"}
 
 
@@ -107,7 +113,10 @@ def task_from_spec(spec: dict[str, Any], base_dir: str, default_name: str = "tas
         raise TaskError(f"[solver] must be a table of solver settings; got {solver!r}.")
     SolverConfig().replace(**solver)  # unknown keys fail here, with the list of known ones
     model_path = os.path.join(base_dir, str(spec["model"]))
-    return Env.from_xml(model_path, name=name, solver_defaults=solver, **kwargs)
+    noise = spec.get("noise")
+    if noise is not None and not isinstance(noise, dict):
+        raise TaskError(f"[noise] must be a table with keys initial, process, measurement; got {noise!r}.")
+    return Env.from_xml(model_path, name=name, solver_defaults=solver, noise=noise, **kwargs)
 
 
 def _reject_constant(name: str) -> float:
