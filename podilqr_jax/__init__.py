@@ -33,6 +33,8 @@ from .errors import ConfigError as ConfigError
 from .errors import ModelLoadError as ModelLoadError
 from .errors import PodIlqrError as PodIlqrError
 from .errors import TaskError as TaskError
+from .estimators import ESTIMATORS as ESTIMATORS
+from .estimators import fit_information_model_iv as fit_information_model_iv
 from .evaluation import TrueCosts as TrueCosts
 from .evaluation import true_costs as true_costs
 from .info_state import companion as companion
@@ -62,6 +64,7 @@ __all__ = [
     "Env",
     "EnvData",
     "EnvDims",
+    "ESTIMATORS",
     "IterationInfo",
     "LinearModel",
     "ModelLoadError",
@@ -81,6 +84,7 @@ __all__ = [
     "companion",
     "default_config",
     "fit_information_model",
+    "fit_information_model_iv",
     "info_states",
     "linearise",
     "make_task",

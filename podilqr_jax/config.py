@@ -13,6 +13,7 @@ from typing import Any, Optional
 
 from .env import Env
 from .errors import ConfigError
+from .estimators import ESTIMATORS, n_instruments
 from .info_state import n_regressors
 
 VARIANTS = ("plain", "feedback", "averaged", "nominal")
@@ -63,6 +64,11 @@ class SolverConfig:
         (``averaged`` only); None picks ``n_s`` for ``averaged``, 1 otherwise.
       mu_cap: under noise a rejected step never ends the solve: the nominal is
         re-measured, mu grows but never above mu_cap, and the solve goes on.
+      estimator: the identification's estimator: ``"ols"`` (least squares, the
+        paper's) or ``"iv"`` (instrumental variables with the injected
+        perturbations and older outputs as instruments, consistent under
+        measurement noise at n_avg = 1; see ``estimators`` and
+        docs/estimators.md). Works with every variant.
     """
 
     q: Optional[int] = None
@@ -83,6 +89,7 @@ class SolverConfig:
     n_avg: Optional[int] = None
     n_forward: Optional[int] = None
     mu_cap: float = 1e3
+    estimator: str = "ols"
 
     def replace(self, **changes: Any) -> "SolverConfig":
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
@@ -124,6 +131,10 @@ class SolverConfig:
                         f"set variant='averaged' or drop {name}."
                     )
         _positive("mu_cap", self.mu_cap)
+        if self.estimator not in ESTIMATORS:
+            raise ConfigError(
+                f"Unknown estimator {self.estimator!r}; choose one of {', '.join(ESTIMATORS)} (see docs/estimators.md)."
+            )
         _int("n_s", self.n_s, 1)
         _int("max_iterations", self.max_iterations, 1)
         _int("n_alphas", self.n_alphas, 1)
@@ -147,6 +158,14 @@ class SolverConfig:
                 f"The horizon T={T} must exceed q={q}: the information state spans q "
                 f"steps. Use a horizon of at least {q + 1} or lower q."
             )
+        if data_based and self.estimator == "iv":
+            m = n_instruments(env.dims.nz, env.dims.nu, q)
+            if self.n_s < 2 * m:
+                raise ConfigError(
+                    f"`n_s`={self.n_s} is too small for estimator='iv': its {m} instruments (q={q}, "
+                    f"nz={env.dims.nz}, nu={env.dims.nu}) need n_s >= {2 * m}, and n_s >= {10 * m} keeps the "
+                    "estimate from leaning toward least squares. Raise n_s or use estimator='ols'."
+                )
         if data_based:
             p = n_regressors(env.dims.nz, env.dims.nu, q)
             if self.n_s < p:

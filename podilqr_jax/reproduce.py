@@ -40,8 +40,11 @@ from .tasks import PAPER_S0, make_task
 
 PANELS = (
     ("full", ("nominal", "plain", "feedback")),
-    ("partial", ("nominal", "plain", "feedback", "averaged")),
+    ("partial", ("nominal", "plain", "feedback", "averaged", "iv")),
 )
+# Study rows that are not a plain ``variant``: the instrumental-variables
+# estimator (docs/estimators.md), with feedback in the sysid rollouts, n_avg = 1.
+ROW_SETTINGS = {"iv": dict(variant="feedback", estimator="iv")}
 SYSTEMS = ("pendulum", "cartpole")
 SWEEP_FACTORS = (0.1, 0.3, 1.0, 3.0)
 LABELS = {
@@ -49,8 +52,9 @@ LABELS = {
     "plain": "POD-iLQR",
     "feedback": "POD-iLQR modified (feedback)",
     "averaged": "POD-iLQR-Avg",
+    "iv": "feedback + instrumental variables",
 }
-COLORS = {"nominal": "k", "plain": "tab:red", "feedback": "tab:blue", "averaged": "tab:green"}
+COLORS = {"nominal": "k", "plain": "tab:red", "feedback": "tab:blue", "averaged": "tab:green", "iv": "tab:purple"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,11 +118,13 @@ def run_study(
                 for seed in range(n_seeds):
                     nominal_true = None
                     for variant in variants:
-                        cfg = base.replace(variant=variant, seed=seed, sigma=base.sigma * factor)
+                        settings_v = ROW_SETTINGS.get(variant, dict(variant=variant))
+                        cfg = base.replace(seed=seed, sigma=base.sigma * factor, **settings_v)
                         r = solve(env, cfg)
                         if variant == "nominal":
                             nominal_true = r.final_true_cost
-                        rows.append(_row(system, observation, study, r, cfg.sigma, nominal_true, optimum))
+                        row = _row(system, observation, study, r, cfg.sigma, nominal_true, optimum)
+                        rows.append(row | {"variant": variant, "estimator": cfg.estimator})
                         say(
                             f"{name:17s} {study:11s} sigma={cfg.sigma:<7.3g} seed={seed} {variant:9s} "
                             f"true/optimum={r.final_true_cost / optimum:.5f} ({r.wall_s:.1f} s)"

@@ -154,6 +154,12 @@ rollout_batch.__doc__ = """Jitted :func:`simulate`: a batch of rollouts for give
 controls u [B, T, nu] (and states x when ``record_state``)."""
 
 
+def injected_perturbations(key: jax.Array, sigma, n_s: int, horizon: int, nu: int, dtype=None) -> jnp.ndarray:
+    """The sysid perturbations du [n_s, T, nu] that ``perturbation_rollouts`` injects for ``key``."""
+    dtype = dtype or jnp.result_type(float)
+    return sigma * jax.random.normal(key, (n_s, horizon, nu), dtype=dtype)
+
+
 @functools.partial(jax.jit, static_argnames=("dims", "q", "n_s", "n_avg", "noisy"))
 def perturbation_rollouts(
     dims: EnvDims,
@@ -173,7 +179,7 @@ def perturbation_rollouts(
     repeats (observations and applied controls) is returned, [n_s, ...]. With
     ``noisy`` every rollout draws the noise of ``data.noise``.
     """
-    du = sigma * jax.random.normal(key, (n_s, dims.horizon, dims.nu), dtype=policy.u_bar.dtype)
+    du = injected_perturbations(key, sigma, n_s, dims.horizon, dims.nu, policy.u_bar.dtype)
     if n_avg > 1:
         du = jnp.repeat(du, n_avg, axis=0)
     noise = sample_noise(jax.random.fold_in(key, 1), data.noise, n_s * n_avg, dims.horizon) if noisy else None

@@ -33,12 +33,13 @@ from .compile_watch import CompileWatch
 from .config import SolverConfig
 from .env import Env
 from .errors import ConfigError
+from .estimators import fit_information_model_iv
 from .evaluation import true_costs
 from .info_state import info_dim, observation_selector
 from .line_search import line_search
 from .model_based import linearise
 from .result import IterationInfo, Result, Status
-from .rollout import Policy, perturbation_rollouts
+from .rollout import Policy, injected_perturbations, perturbation_rollouts
 from .sysid import LinearModel, fit_information_model
 
 Callback = Callable[[IterationInfo], None]
@@ -88,7 +89,11 @@ def solve(
         traj = perturbation_rollouts(dims, q, cfg.n_s, data, policy, key, sigma, n_avg=n_avg, noisy=noisy)
         traj.z.block_until_ready()
         t1 = time.perf_counter()
-        model, report = fit_information_model(traj.z, traj.u, nominal.z_bar, nominal.u_bar, q, rcond)
+        if cfg.estimator == "iv":
+            du = injected_perturbations(key, sigma, cfg.n_s, dims.horizon, dims.nu)
+            model, report = fit_information_model_iv(traj.z, traj.u, du, nominal.z_bar, nominal.u_bar, q, rcond)
+        else:
+            model, report = fit_information_model(traj.z, traj.u, nominal.z_bar, nominal.u_bar, q, rcond)
         stop = None
         if not bool(report.all_finite):
             stop = (Status.NONFINITE, "a sysid rollout or the fitted model is not finite")

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from linear_gaussian import random_ltv, rel_err
 
 import podilqr_jax  # noqa: F401  (enables float64 in JAX)
 from podilqr_jax.backward import QuadraticCost, Regularisation, backward_pass, riccati
@@ -39,18 +40,9 @@ RCOND = 1e-10
 
 
 # ---------------------------------------------------------------------------
-# helpers (numpy, independent of the library)
+# helpers (numpy, independent of the library; random_ltv and rel_err are in
+# linear_gaussian.py, shared with the noise and estimator tests)
 # ---------------------------------------------------------------------------
-
-
-def random_ltv(rng, nx, nu, T, radius=0.95):
-    """Random time-varying F_t [T, nx, nx] (spectral radius ~radius) and G_t [T, nx, nu]."""
-    F = np.empty((T, nx, nx))
-    for t in range(T):
-        M = rng.standard_normal((nx, nx))
-        F[t] = radius * M / np.max(np.abs(np.linalg.eigvals(M)))
-    G = rng.standard_normal((T, nx, nu))
-    return F, G
 
 
 def simulate(F, G, x0, u):
@@ -71,11 +63,6 @@ def propagate(A, B, du):
     for t in range(T):
         dZ[..., t + 1, :] = dZ[..., t, :] @ A[t].T + du[..., t, :] @ B[t].T
     return dZ
-
-
-def rel_err(a, b):
-    a, b = np.asarray(a), np.asarray(b)
-    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
 
 
 def range_basis(X, tol=1e-10):

@@ -54,24 +54,20 @@ Shapes are reused so that ``fit_information_model`` compiles four times in all
 
 from __future__ import annotations
 
-import jax.numpy as jnp
+import linear_gaussian as lg
 import numpy as np
 import pytest
 
 import podilqr_jax  # noqa: F401  (enables float64 in JAX)
-from podilqr_jax.sysid import fit_information_model
 
-RCOND = 1e-10
 # Exact-arithmetic identities (the same least-squares problem solved two ways,
 # noiseless data): float64 round-off of small SVD solves is ~1e-13 relative.
 FIT_RTOL = 1e-9
 
-# Perturbation std of the sysid controls, everywhere.
-SIGMA_DU = 0.1
-
 # Lemma 1 (full observation): nx = 3, nu = 2, T = 8; process noise std 0.05
-# (half the perturbation), initial-state deviation std 0.1 (the paper samples
-# dx_0 at random; it also makes A_0 identifiable), feedback K_t = 0.3 N(0, 1).
+# (half the perturbation std SIGMA_DU = 0.1), initial-state deviation std 0.1
+# (the paper samples dx_0 at random; it also makes A_0 identifiable), feedback
+# K_t = 0.3 N(0, 1).
 L1_NX, L1_NU, L1_T = 3, 2, 8
 L1_W_STD, L1_DX0_STD, L1_K_SCALE = 0.05, 0.1, 0.3
 L1_N_SMALL, L1_N_LARGE = 100, 6400
@@ -85,94 +81,14 @@ L2_N_SMALL, L2_N_LARGE = 400, 6400
 
 
 # ---------------------------------------------------------------------------
-# helpers (numpy, independent of the library)
+# helpers (numpy, independent of the library; the systems, rollouts and fit
+# wrapper are shared with test_estimators.py through linear_gaussian.py)
 # ---------------------------------------------------------------------------
-
-
-def random_ltv(rng, nx, nu, T, radius=0.95):
-    """Random time-varying F_t [T, nx, nx] (spectral radius = radius) and G_t [T, nx, nu]."""
-    F = np.empty((T, nx, nx))
-    for t in range(T):
-        M = rng.standard_normal((nx, nx))
-        F[t] = radius * M / np.max(np.abs(np.linalg.eigvals(M)))
-    G = rng.standard_normal((T, nx, nu))
-    return F, G
-
-
-def oscillator_ltv(rng, T):
-    """Damped rotation F_t (angle 0.5 +- 0.2 rad, radius 0.95 +- 0.05), G_t ~ [0, 1], C = [1, 0].
-
-    Well conditioned by construction: cond([C; C F_t]) ~ 6, so the true ARMA
-    coefficients are O(1) and the relative errors below mean the same for
-    every seed (a random F, G, C can make [C; C F] nearly singular).
-    """
-    th = 0.5 + 0.2 * rng.uniform(-1, 1, T)
-    rho = 0.95 + 0.05 * rng.uniform(-1, 1, T)
-    F = rho[:, None, None] * np.stack([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]).transpose(2, 0, 1)
-    G = np.stack([0.2 * rng.uniform(-1, 1, T), 1 + 0.2 * rng.uniform(-1, 1, T)], axis=1)[:, :, None]
-    C = np.array([[1.0, 0.0]])
-    return F, G, C
-
-
-def nominal(F, G, x0, u_bar):
-    """Noiseless trajectory x_bar [T+1, nx] under u_bar."""
-    x = np.empty((F.shape[0] + 1, x0.shape[0]))
-    x[0] = x0
-    for t in range(F.shape[0]):
-        x[t + 1] = F[t] @ x[t] + G[t] @ u_bar[t]
-    return x
-
-
-def full_obs_rollouts(rng, F, G, x_bar, u_bar, K, n):
-    """n rollouts with u = u_bar + K (x - x_bar) + du, process noise, random x_0.
-
-    Returns x [n, T+1, nx], applied u [n, T, nu], injected du [n, T, nu].
-    """
-    T, nx, nu = G.shape
-    du = SIGMA_DU * rng.standard_normal((n, T, nu))
-    x = np.empty((n, T + 1, nx))
-    u = np.empty((n, T, nu))
-    x[:, 0] = x_bar[0] + L1_DX0_STD * rng.standard_normal((n, nx))
-    for t in range(T):
-        u[:, t] = u_bar[t] + (x[:, t] - x_bar[t]) @ K[t].T + du[:, t]
-        x[:, t + 1] = x[:, t] @ F[t].T + u[:, t] @ G[t].T + L1_W_STD * rng.standard_normal((n, nx))
-    return x, u, du
-
-
-def partial_obs_deviations(F, G, C, k, du, w, v):
-    """Deviations from the nominal of a rollout with dx_0 = 0 and feedback on the measurement.
-
-    u_t = u_bar_t + du_t + k_t dz_t, x_{t+1} = F x + G u + w_t, z_t = C x_t + v_t.
-    Linear in (du [n, T, nu], w [n, T, nx], v [n, T+1, nz]); returns dz [n, T+1, nz]
-    and the applied control deviation [n, T, nu].
-    """
-    n, T, _ = du.shape
-    dx = np.zeros((n, F.shape[1]))
-    dz = np.empty((n, T + 1, C.shape[0]))
-    du_app = np.empty_like(du)
-    for t in range(T):
-        dz[:, t] = dx @ C.T + v[:, t]
-        du_app[:, t] = du[:, t] + dz[:, t] @ k[t].T
-        dx = dx @ F[t].T + du_app[:, t] @ G[t].T + w[:, t]
-    dz[:, T] = dx @ C.T + v[:, T]
-    return dz, du_app
 
 
 def arma_regressors(dz, du, t):
     """q = 2 regression at step t >= 1: X = [dz_t, dz_{t-1}, du_{t-1}, du_t], Y = dz_{t+1} (nz = nu = 1)."""
     return np.concatenate([dz[:, t], dz[:, t - 1], du[:, t - 1], du[:, t]], axis=1), dz[:, t + 1, 0]
-
-
-def true_arma(F, G, C, t):
-    """[a1, a2, b2, b1] of z_{t+1} = a1 z_t + a2 z_{t-1} + b2 u_{t-1} + b1 u_t (noiseless, t >= 1).
-
-    x_{t-1} = O^{-1} [z_{t-1}; z_t - C G_{t-1} u_{t-1}] with O = [C; C F_{t-1}],
-    x_t = F_{t-1} x_{t-1} + G_{t-1} u_{t-1}, z_{t+1} = C F_t x_t + C G_t u_t.
-    """
-    O = np.vstack([C, C @ F[t - 1]])
-    P = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, -(C @ G[t - 1])[0, 0]]])  # (z_t, z_{t-1}, u_{t-1}) -> O x_{t-1}
-    x_t = F[t - 1] @ np.linalg.solve(O, P) + np.outer(G[t - 1][:, 0], [0.0, 0.0, 1.0])
-    return np.concatenate([(C @ F[t] @ x_t)[0], (C @ G[t])[0]])
 
 
 def population_fit(F, G, C, k, w_std, v_std):
@@ -188,12 +104,12 @@ def population_fit(F, G, C, k, w_std, v_std):
     sizes = [T * nu, T * nx, (T + 1) * nz]
     E = np.split(np.eye(sum(sizes)), np.cumsum(sizes)[:-1], axis=1)
     p = sum(sizes)
-    dz, du_app = partial_obs_deviations(
+    dz, du_app = lg.deviations(
         F,
         G,
         C,
         k,
-        SIGMA_DU * E[0].reshape(p, T, nu),
+        lg.SIGMA_DU * E[0].reshape(p, T, nu),
         w_std * E[1].reshape(p, T, nx),
         v_std * E[2].reshape(p, T + 1, nz),
     )
@@ -204,27 +120,9 @@ def population_fit(F, G, C, k, w_std, v_std):
     return theta
 
 
-def fit(z, u, z_bar, u_bar, q):
-    model, report = fit_information_model(
-        jnp.asarray(z), jnp.asarray(u), jnp.asarray(z_bar), jnp.asarray(u_bar), q, RCOND
-    )
-    assert bool(report.all_finite)
-    return np.asarray(model.A), np.asarray(model.B), np.asarray(report.rank)
-
-
-def rel_err(a, b):
-    a, b = np.asarray(a), np.asarray(b)
-    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
-
-
-def rel_fro(a, b):
-    """||a - b||_F / ||b||_F over all time steps and entries."""
-    return np.linalg.norm(np.asarray(a) - b) / np.linalg.norm(b)
-
-
 def coeff_err(theta, ref, t_first=L2_T_CMP):
     """Relative Frobenius error of ARMA coefficients [T, 4] over the steps t >= t_first."""
-    return rel_fro(theta[t_first:], ref[t_first:])
+    return lg.rel_fro(theta[t_first:], ref[t_first:])
 
 
 # ---------------------------------------------------------------------------
@@ -232,28 +130,26 @@ def coeff_err(theta, ref, t_first=L2_T_CMP):
 # ---------------------------------------------------------------------------
 
 
+def fit_q1(x, u, du, x_bar, u_bar):
+    """Least-squares fit with q = 1 (full observation); it has no use for the injected du."""
+    return lg.fit_ols(x, u, x_bar, u_bar, 1)
+
+
 def lemma1_problem(seed, feedback=True):
     rng = np.random.default_rng(seed)
-    F, G = random_ltv(rng, L1_NX, L1_NU, L1_T)
+    F, G = lg.random_ltv(rng, L1_NX, L1_NU, L1_T)
     K = L1_K_SCALE * rng.standard_normal((L1_T, L1_NU, L1_NX))
     if not feedback:
         K = np.zeros_like(K)
     x0 = rng.standard_normal(L1_NX)
     u_bar = rng.standard_normal((L1_T, L1_NU))
-    return rng, F, G, K, nominal(F, G, x0, u_bar), u_bar
+    return rng, F, G, K, lg.nominal(F, G, x0, u_bar), u_bar
 
 
 def lemma1_errors(seed, feedback=True):
     """Relative errors of [A_t | B_t] vs [F_t | G_t] at n_s = L1_N_SMALL, L1_N_LARGE, and ||G K|| (relative)."""
     rng, F, G, K, x_bar, u_bar = lemma1_problem(seed, feedback)
-    truth = np.concatenate([F, G], axis=2)
-    errs = []
-    for n in (L1_N_SMALL, L1_N_LARGE):
-        x, u, _ = full_obs_rollouts(rng, F, G, x_bar, u_bar, K, n)
-        A, B, rank = fit(x, u, x_bar, u_bar, 1)
-        assert np.all(rank == L1_NX + L1_NU)
-        errs.append(rel_fro(np.concatenate([A, B], axis=2), truth))
-    return errs[0], errs[1], np.linalg.norm(G @ K) / np.linalg.norm(truth)
+    return lg.full_obs_fit_errors(fit_q1, rng, F, G, K, x_bar, u_bar, (L1_N_SMALL, L1_N_LARGE), L1_W_STD, L1_DX0_STD)
 
 
 @pytest.mark.parametrize("feedback", [True, False], ids=["feedback", "open_loop"])
@@ -282,22 +178,22 @@ def test_lemma1_injected_perturbation_form_matches_applied_control_fit():
     # regressor sets are an invertible linear map of each other, so on the
     # same (noisy) data both give the same numbers, to round-off.
     rng, F, G, K, x_bar, u_bar = lemma1_problem(seed=1)
-    x, u, du_inj = full_obs_rollouts(rng, F, G, x_bar, u_bar, K, L1_N_SMALL)
-    A, B, _ = fit(x, u, x_bar, u_bar, 1)
+    x, u, du_inj = lg.full_obs_rollouts(rng, F, G, x_bar, u_bar, K, L1_N_SMALL, L1_W_STD, L1_DX0_STD)
+    A, B, _ = fit_q1(x, u, du_inj, x_bar, u_bar)
     dx = x - x_bar
     for t in range(L1_T):
         X = np.concatenate([dx[:, t], du_inj[:, t]], axis=1)
         W = np.linalg.lstsq(X, dx[:, t + 1], rcond=None)[0]
         closed, B_inj = W[:L1_NX].T, W[L1_NX:].T
         A_inj = closed - B_inj @ K[t]
-        assert rel_err(A[t], A_inj) < FIT_RTOL
-        assert rel_err(B[t], B_inj) < FIT_RTOL
+        assert lg.rel_err(A[t], A_inj) < FIT_RTOL
+        assert lg.rel_err(B[t], B_inj) < FIT_RTOL
         # and the plain applied-control regression, in numpy
         W_app = np.linalg.lstsq(np.concatenate([dx[:, t], u[:, t] - u_bar[t]], axis=1), dx[:, t + 1], rcond=None)[0]
-        assert rel_err(A[t], W_app[:L1_NX].T) < FIT_RTOL
-        assert rel_err(B[t], W_app[L1_NX:].T) < FIT_RTOL
+        assert lg.rel_err(A[t], W_app[:L1_NX].T) < FIT_RTOL
+        assert lg.rel_err(B[t], W_app[L1_NX:].T) < FIT_RTOL
         # the closed-loop matrix itself is far from F: the subtraction matters
-        assert rel_err(closed, F[t]) > 0.05
+        assert lg.rel_err(closed, F[t]) > 0.05
 
 
 # ---------------------------------------------------------------------------
@@ -316,29 +212,20 @@ L2_CASES = {
 
 
 def lemma2_problem(seed, k_scale):
-    rng = np.random.default_rng(seed)
-    F, G, C = oscillator_ltv(rng, L2_T)
-    k = k_scale * rng.standard_normal((L2_T, 1, 1))
-    x0 = rng.standard_normal(2)
-    u_bar = rng.standard_normal((L2_T, 1))
-    z_bar = nominal(F, G, x0, u_bar) @ C.T
-    truth = np.zeros((L2_T, 4))
-    for t in range(L2_T_IDENT, L2_T):
-        truth[t] = true_arma(F, G, C, t)
-    return rng, F, G, C, k, z_bar, u_bar, truth
+    return lg.oscillator_problem(seed, L2_T, k_scale, t_first=L2_T_IDENT)
 
 
 def lemma2_fit(rng, F, G, C, k, z_bar, u_bar, n, w_std, v_std, n_avg=1):
     """Fitted ARMA coefficients [T, 4] from n perturbation sequences, each averaged over n_avg noisy runs."""
-    du = SIGMA_DU * rng.standard_normal((n, L2_T, 1))
+    du = lg.SIGMA_DU * rng.standard_normal((n, L2_T, 1))
     dz, du_app = 0.0, 0.0
     for _ in range(n_avg):
         w = w_std * rng.standard_normal((n, L2_T, 2))
         v = v_std * rng.standard_normal((n, L2_T + 1, 1))
-        dz_r, du_r = partial_obs_deviations(F, G, C, k, du, w, v)
+        dz_r, du_r = lg.deviations(F, G, C, k, du, w, v)
         dz, du_app = dz + dz_r / n_avg, du_app + du_r / n_avg
-    A, B, rank = fit(z_bar + dz, u_bar + du_app, z_bar, u_bar, L2_Q)
-    return np.concatenate([A[:, 0], B[:, 0]], axis=1), rank
+    A, B, rank = lg.fit_ols(z_bar + dz, u_bar + du_app, z_bar, u_bar, L2_Q)
+    return lg.arma_coefficients(A, B), rank
 
 
 def lemma2_errors(seed, case):

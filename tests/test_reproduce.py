@@ -52,7 +52,10 @@ def test_reproduce_writes_summary_figures_and_table(tmp_path):
         ("partial", "plain"),
         ("partial", "feedback"),
         ("partial", "averaged"),
+        ("partial", "iv"),
     }
+    iv = [r for r in main_rows if r["variant"] == "iv"][0]
+    assert iv["estimator"] == "iv" and iv["n_avg"] == 1
     # every row of a panel compares with the nominal run of the same seed and sigma
     for r in main_rows:
         nominal = [n for n in main_rows if n["observation"] == r["observation"] and n["variant"] == "nominal"]
