@@ -15,7 +15,13 @@ import pytest
 import podilqr_jax as pj
 from podilqr_jax.info_state import info_dim
 from podilqr_jax.noise import sample_noise
-from podilqr_jax.rollout import average_repeats, open_loop_policy, perturbation_rollouts, rollout_batch
+from podilqr_jax.rollout import (
+    average_repeats,
+    injected_perturbations,
+    open_loop_policy,
+    perturbation_rollouts,
+    rollout_batch,
+)
 
 # Small problems: short horizon, few iterations (compile time dominates on CPU).
 HORIZON = 10
@@ -71,6 +77,9 @@ def test_repeats_are_grouped_per_perturbation_sequence():
     avg = perturbation_rollouts(dims, 1, 6, data, policy, key, sigma, n_avg=3)
     np.testing.assert_allclose(np.asarray(avg.z), np.asarray(one.z), rtol=1e-13, atol=1e-13)
     np.testing.assert_allclose(np.asarray(avg.u), np.asarray(one.u), rtol=1e-13, atol=1e-13)
+    # the IV estimator regenerates the injected perturbations from the same key
+    du = injected_perturbations(key, sigma, 6, HORIZON, dims.nu)
+    np.testing.assert_allclose(np.asarray(one.u), np.asarray(du), rtol=0, atol=1e-15)
     # and the helper averages consecutive groups
     t = pj.Trajectory(jnp.arange(12.0).reshape(4, 3, 1), jnp.arange(8.0).reshape(4, 2, 1), None)
     np.testing.assert_array_equal(np.asarray(average_repeats(t, 2).z[:, 0, 0]), [1.5, 7.5])
