@@ -144,15 +144,13 @@ def _parse_noise(text: str):
         return "paper" if text == "paper" else NoiseModel()
     fields: dict[str, Any] = {}
     for item in text.split(","):
-        key, sep, raw = item.partition("=")
+        key, _, raw = item.partition("=")
         try:
             fields[key.strip()] = float(raw)
-        except ValueError:
-            sep = ""
-        if not sep:
+        except ValueError:  # also a missing `=`: float("") fails
             raise TaskError(
                 f"--noise expects `paper`, `none` or initial=S0,process=SW,measurement=SV (numbers); got {text!r}."
-            )
+            ) from None
     return NoiseModel.from_any(fields)
 
 
@@ -166,7 +164,7 @@ def _cmd_tasks(args: argparse.Namespace) -> int:
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from .errors import ConfigError
-    from .reproduce import SYSTEMS, StudySettings, run_study
+    from .reproduce import SYSTEMS, StudySettings, format_table, run_study
 
     settings = StudySettings.quick() if args.quick else StudySettings()
     systems = tuple(s.strip() for s in args.systems.split(",") if s.strip())
@@ -184,10 +182,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     probe = os.path.join(args.out, "summary.json")
     _check_writable(probe)
     print(f"reproducing the paper's study into {args.out} ({settings})", file=sys.stderr)
-    run_study(args.out, settings, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-    from .reproduce import format_table, load_rows
-
-    print(format_table(load_rows(probe)))
+    rows = run_study(args.out, settings, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    print(format_table(rows))
     print(f"wrote {args.out}/summary.json, fig2_true_cost.png, sigma_sweep.png, table.md", file=sys.stderr)
     return 0
 

@@ -54,8 +54,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from .info_state import companion
-from .sysid import FitReport, LinearModel, least_squares, regression_data
+from .sysid import FitReport, LinearModel, fit_each_step, least_squares, regression_data
 
 ESTIMATORS = ("ols", "iv")
 
@@ -83,30 +82,23 @@ def instruments(du: jnp.ndarray, dz: jnp.ndarray, q: int) -> jnp.ndarray:
 
 
 def two_stage_least_squares(X: jnp.ndarray, Y: jnp.ndarray, W: jnp.ndarray, rcond: jnp.ndarray):
-    """Centred 2SLS of Y [n, k] on X [n, p] with instruments W [n, m]; returns (Theta' [p, k], rank)."""
+    """Centred 2SLS of Y [n, k] on X [n, p] with instruments W [n, m].
+
+    Returns (Theta' [p, k], rank, the centred residual [n, k]).
+    """
     X = X - X.mean(0)
     Y = Y - Y.mean(0)
     W = W - W.mean(0)
     U, s, _ = jnp.linalg.svd(W, full_matrices=False)
     keep = s > 1e-10 * s[0]
     Q = U * keep  # orthonormal basis of the instruments' span (dropped directions zeroed)
-    return least_squares(Q.T @ X, Q.T @ Y, rcond)
+    theta, rank = least_squares(Q.T @ X, Q.T @ Y, rcond)
+    return theta, rank, Y - X @ theta
 
 
 @functools.partial(jax.jit, static_argnames=("q",))
 def fit_information_model_iv(z, u, du, z_bar, u_bar, q: int, rcond) -> tuple[LinearModel, FitReport]:
     """The ARMA fit of ``sysid`` by instrumental variables (a ``lax.scan`` over time)."""
-    nz, nu = z.shape[-1], u.shape[-1]
-    all_finite = jnp.all(jnp.isfinite(z)) & jnp.all(jnp.isfinite(u))
     X, Y = regression_data(z, u, z_bar, u_bar, q)
     W = instruments(du, z - z_bar, q)
-
-    def step(_, xyw):
-        X_t, Y_t, W_t = xyw
-        Wt, rank = two_stage_least_squares(X_t, Y_t, W_t, rcond)
-        A_t, B_t = companion(Wt.T, nz, nu, q)
-        res = (Y_t - Y_t.mean(0)) - (X_t - X_t.mean(0)) @ Wt
-        return None, (A_t, B_t, jnp.sqrt(jnp.mean(res**2)), jnp.sqrt(jnp.mean(Y_t**2)), rank)
-
-    _, (A, B, res, tgt, rank) = jax.lax.scan(step, None, (X, Y, W))
-    return LinearModel(A, B), FitReport(res, tgt, rank, all_finite)
+    return fit_each_step(z, u, (X, Y, W), q, lambda X_t, Y_t, W_t: two_stage_least_squares(X_t, Y_t, W_t, rcond))

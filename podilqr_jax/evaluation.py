@@ -25,7 +25,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .cost import trajectory_cost
+from .cost import batch_costs
 from .env import EnvData, EnvDims
 from .rollout import Policy, simulate
 
@@ -41,8 +41,5 @@ def true_costs(dims: EnvDims, q: int, data: EnvData, policy: Policy) -> TrueCost
     zero = jnp.zeros((dims.horizon, dims.nu), policy.u_bar.dtype)
     gains = jnp.stack([policy.K, jnp.zeros_like(policy.K)])
     both = jax.vmap(lambda K: simulate(dims, q, data, policy._replace(K=K), zero, zero))(gains)
-    costs = jax.vmap(trajectory_cost, in_axes=(0, 0, None, None, None, None))(
-        both.z, both.u, data.z_target, data.Q, data.QT, data.R
-    )
-    costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
+    costs, _ = batch_costs(both.z, both.u, data)
     return TrueCosts(costs[0], costs[1])

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .cost import trajectory_cost
+from .cost import batch_costs
 from .env import EnvData, EnvDims
 from .info_state import info_states
 from .noise import sample_noise
@@ -67,13 +67,7 @@ def line_search(
     noise = sample_noise(key, data.noise, offsets.shape[0], dims.horizon) if noisy else None
     traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True, noise=noise)
     traj = average_repeats(traj, n_fwd)
-    cost = jax.vmap(trajectory_cost, in_axes=(0, 0, None, None, None, None))(
-        traj.z, traj.u, data.z_target, data.Q, data.QT, data.R
-    )
-    finite = (
-        jnp.isfinite(cost) & jnp.all(jnp.isfinite(traj.z), axis=(1, 2)) & jnp.all(jnp.isfinite(traj.u), axis=(1, 2))
-    )
-    cost = jnp.where(finite, cost, jnp.inf)
+    cost, finite = batch_costs(traj.z, traj.u, data)
     expected = -(alphas * dV1 + alphas**2 * dV2)
     ratio = (cost0 - cost) / jnp.where(expected > 0, expected, jnp.inf)
     ok = finite & (cost < cost0) & (ratio > accept_ratio)

@@ -10,7 +10,8 @@ import numpy as np
 from .result import Result
 
 
-def _pyplot():
+def agg_pyplot():
+    """matplotlib.pyplot on the file-only Agg backend (imported on first use)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -22,7 +23,7 @@ def _pyplot():
 def plot_convergence(results: Sequence[Result], path: str | os.PathLike, title: Optional[str] = None) -> str:
     """Cost per iteration (log scale) of one or more results, e.g. POD-iLQR and
     the model-based reference on the same task."""
-    plt = _pyplot()
+    plt = agg_pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for r in results:
         ax.semilogy(np.arange(len(r.cost_history)), r.cost_history, marker=".", ms=3, label=f"{r.method} ({r.status})")
@@ -39,7 +40,7 @@ def plot_convergence(results: Sequence[Result], path: str | os.PathLike, title: 
 
 def plot_trajectory(result: Result, path: str | os.PathLike) -> str:
     """The nominal trajectory: every state coordinate and the controls vs time."""
-    plt = _pyplot()
+    plt = agg_pyplot()
     x, u = result.states, result.controls
     dt = result.control_dt
     t_x = dt * np.arange(x.shape[0])

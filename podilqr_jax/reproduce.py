@@ -34,6 +34,7 @@ import jax
 import numpy as np
 
 from .noise import NoiseModel
+from .plots import agg_pyplot
 from .result import write_json_atomic
 from .solver import default_config, solve, solve_model_based
 from .tasks import PAPER_S0, make_task
@@ -123,7 +124,7 @@ def run_study(
                         r = solve(env, cfg)
                         if variant == "nominal":
                             nominal_true = r.final_true_cost
-                        row = _row(system, observation, study, r, cfg.sigma, nominal_true, optimum)
+                        row = _row(system, observation, study, r, cfg, nominal_true, optimum)
                         rows.append(row | {"variant": variant, "estimator": cfg.estimator})
                         say(
                             f"{name:17s} {study:11s} sigma={cfg.sigma:<7.3g} seed={seed} {variant:9s} "
@@ -145,21 +146,23 @@ def run_study(
     return rows
 
 
-def _row(system, observation, study, r, sigma, nominal_true, optimum) -> dict:
+def _row(system, observation, study, r, cfg, nominal_true, optimum) -> dict:
     fed = max(r.iterations, 1)
+    # the nominal run of a panel compares with itself
+    reference = r.final_true_cost if nominal_true is None else nominal_true
     return {
         "system": system,
         "observation": observation,
         "study": study,
         "variant": r.variant,
-        "seed": int(r.config["seed"]),
-        "sigma": float(sigma),
-        "n_s": int(r.config["n_s"]),
-        "n_avg": int(r.config["n_avg"] or (10 if r.variant == "averaged" else 1)),
+        "seed": cfg.seed,
+        "sigma": float(cfg.sigma),
+        "n_s": cfg.n_s,
+        "n_avg": cfg.resolved_n_avg(),
         "final_true_cost": r.final_true_cost,
-        "nominal_true_cost": nominal_true if nominal_true is not None else r.final_true_cost,
+        "nominal_true_cost": reference,
         "model_based_cost": optimum,
-        "ratio_to_nominal": r.final_true_cost / (nominal_true if nominal_true is not None else r.final_true_cost),
+        "ratio_to_nominal": r.final_true_cost / reference,
         "ratio_to_model_based": r.final_true_cost / optimum,
         "final_open_loop_cost": r.open_loop_cost_history[-1],
         "final_training_cost": r.final_cost,
@@ -236,22 +239,13 @@ def format_table(rows: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def plot_fig2(rows: Sequence[dict], path: str) -> str:
     """2x2 like the paper's Fig. 2: rows full/partial, columns pendulum/cart-pole.
 
     True cost / model-based optimum vs iteration: mean over seeds with a
     min-max band, and a zoomed inset over the last half of the iterations.
     """
-    plt = _pyplot()
+    plt = agg_pyplot()
     main = _select(rows, study="main")
     systems = [s for s in SYSTEMS if _select(main, system=s)]
     fig, axes = plt.subplots(2, len(systems), figsize=(6.2 * len(systems), 8.2), squeeze=False)
@@ -304,7 +298,7 @@ def plot_fig2(rows: Sequence[dict], path: str) -> str:
 
 def plot_sigma_sweep(rows: Sequence[dict], path: str) -> str:
     """Final true cost / optimum vs the perturbation sigma, per variant."""
-    plt = _pyplot()
+    plt = agg_pyplot()
     systems = [s for s in SYSTEMS if _select(rows, system=s)]
     fig, axes = plt.subplots(2, len(systems), figsize=(6.2 * len(systems), 7.4), squeeze=False)
     for i, (observation, variants) in enumerate(PANELS):

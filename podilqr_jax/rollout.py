@@ -154,6 +154,7 @@ rollout_batch.__doc__ = """Jitted :func:`simulate`: a batch of rollouts for give
 controls u [B, T, nu] (and states x when ``record_state``)."""
 
 
+@functools.partial(jax.jit, static_argnames=("n_s", "horizon", "nu", "dtype"))
 def injected_perturbations(key: jax.Array, sigma, n_s: int, horizon: int, nu: int, dtype=None) -> jnp.ndarray:
     """The sysid perturbations du [n_s, T, nu] that ``perturbation_rollouts`` injects for ``key``."""
     dtype = dtype or jnp.result_type(float)

@@ -74,18 +74,18 @@ def solve(
     """
     cfg = default_config(env) if cfg is None else cfg
     q = cfg.validate(env, data_based=True)
-    dims, data = env.dims, jax.device_put(env.data, jax.devices()[0])
+    dims, data = env.dims, _on_device(env.data)
     nZ = info_dim(dims.nz, dims.nu, q)
     sigma = _on_device(cfg.sigma)
     rcond = _on_device(cfg.rcond)
     noisy = env.noisy and cfg.variant != "nominal"
     feedback = cfg.variant != "plain"
     n_avg = cfg.resolved_n_avg()
-    no_gains = _on_device(jnp.zeros((dims.horizon, dims.nu, nZ)))
+    no_gains = _on_device(np.zeros((dims.horizon, dims.nu, nZ)))
 
     def identify(key, nominal, gains):
         t0 = time.perf_counter()
-        policy = Policy(nominal.u_bar, nominal.Z_bar[:-1], gains if feedback else no_gains)
+        policy = nominal.policy(gains if feedback else no_gains)
         traj = perturbation_rollouts(dims, q, cfg.n_s, data, policy, key, sigma, n_avg=n_avg, noisy=noisy)
         traj.z.block_until_ready()
         t1 = time.perf_counter()
@@ -106,7 +106,7 @@ def solve(
         t2 = time.perf_counter()
         return model, stop, cfg.n_s * n_avg, {"rollouts": t1 - t0, "fit": t2 - t1}
 
-    return _iterate("pod-ilqr", env, env, cfg, q, identify, u_init, callback, noisy, cfg.resolved_n_forward())
+    return _iterate("pod-ilqr", env, dims, data, cfg, q, identify, u_init, callback, noisy, cfg.resolved_n_forward())
 
 
 def solve_model_based(
@@ -125,7 +125,7 @@ def solve_model_based(
     cfg = default_config(env) if cfg is None else cfg
     cfg.validate(env, data_based=False)
     view = env.full_state_view()
-    dims, data = view.dims, jax.device_put(view.data, jax.devices()[0])
+    dims, data = view.dims, _on_device(view.data)
 
     def identify(key, nominal, gains):
         t0 = time.perf_counter()
@@ -134,7 +134,7 @@ def solve_model_based(
         stop = None if finite else (Status.NONFINITE, "the exact linearisation is not finite")
         return model, stop, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}
 
-    return _iterate("model-based", env, view, cfg, 1, identify, u_init, callback, False, 1)
+    return _iterate("model-based", env, dims, data, cfg, 1, identify, u_init, callback, False, 1)
 
 
 @dataclasses.dataclass
@@ -145,10 +145,20 @@ class _Nominal:
     Z_bar: jnp.ndarray
     cost: float
 
+    @classmethod
+    def measured(cls, ls) -> "_Nominal":
+        """The line search's chosen rollout as the new nominal."""
+        return cls(ls.trajectory.u, ls.trajectory.z, ls.trajectory.x, ls.Z, float(ls.cost))
 
-def _iterate(method, env, view, cfg, q, identify, u_init, callback, noisy, n_fwd) -> Result:
+    def policy(self, K) -> Policy:
+        """u_t = u_bar_t + K_t (Z_t - Z_bar_t) about this nominal."""
+        return Policy(self.u_bar, self.Z_bar[:-1], K)
+
+
+def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy, n_fwd) -> Result:
+    """The outer loop; ``dims, data`` are the task as the solver sees it (its
+    data committed to the device), ``env`` the task as the user gave it."""
     t_start = time.perf_counter()
-    dims, data = view.dims, jax.device_put(view.data, jax.devices()[0])
     nZ = info_dim(dims.nz, dims.nu, q)
     u0 = _initial_controls(u_init, dims)
     cost_model = QuadraticCost(observation_selector(dims.nz, dims.nu, q), data.z_target, data.Q, data.QT, data.R)
@@ -183,7 +193,7 @@ def _iterate(method, env, view, cfg, q, identify, u_init, callback, noisy, n_fwd
         if not noisy:
             return nominal.cost, nominal.cost
         t0 = time.perf_counter()
-        tc = true_costs(dims, q, data, Policy(nominal.u_bar, nominal.Z_bar[:-1], gains))
+        tc = true_costs(dims, q, data, nominal.policy(gains))
         out = float(tc.closed_loop), float(tc.open_loop)
         phase_s["evaluation"] += time.perf_counter() - t0
         return out
@@ -193,7 +203,7 @@ def _iterate(method, env, view, cfg, q, identify, u_init, callback, noisy, n_fwd
         with CompileWatch() as watch0:
             first = Policy(u0, _on_device(np.zeros((dims.horizon, nZ))), gains)
             ls, _ = measure(first, zero_k, np.inf, no_change, no_change)
-            nominal = _Nominal(ls.trajectory.u, ls.trajectory.z, ls.trajectory.x, ls.Z, float(ls.cost))
+            nominal = _Nominal.measured(ls)
             true_cost, open_cost = ground_truth(nominal)
         cost_history = [nominal.cost]
         true_history, open_history = [true_cost], [open_cost]
@@ -242,17 +252,15 @@ def _iterate(method, env, view, cfg, q, identify, u_init, callback, noisy, n_fwd
                             gains = back.K
                     if stop is None:
                         if back_ok:
-                            policy = Policy(nominal.u_bar, nominal.Z_bar[:-1], back.K)
-                            ls, accepted = measure(policy, back.k, nominal.cost, back.dV1, back.dV2)
+                            ls, accepted = measure(nominal.policy(back.K), back.k, nominal.cost, back.dV1, back.dV2)
                         else:  # noisy and no usable model: re-measure the current policy
-                            policy = Policy(nominal.u_bar, nominal.Z_bar[:-1], gains)
-                            ls, accepted = measure(policy, zero_k, nominal.cost, no_change, no_change)
+                            ls, accepted = measure(nominal.policy(gains), zero_k, nominal.cost, no_change, no_change)
                         iter_rollouts += ls_rollouts
                         if accepted:
                             new_cost = float(ls.cost)
                             alpha_history.append(float(ls.alpha))
                             decrease = nominal.cost - new_cost
-                            nominal = _Nominal(ls.trajectory.u, ls.trajectory.z, ls.trajectory.x, ls.Z, new_cost)
+                            nominal = _Nominal.measured(ls)
                             gains = back.K
                             model = None
                             failures = streak = 0
@@ -272,9 +280,7 @@ def _iterate(method, env, view, cfg, q, identify, u_init, callback, noisy, n_fwd
                                 # same policy (the alpha = 0 candidate) and
                                 # identify again about it, with mu capped.
                                 mu = min(mu, cfg.mu_cap)
-                                nominal = _Nominal(
-                                    ls.trajectory.u, ls.trajectory.z, ls.trajectory.x, ls.Z, float(ls.cost)
-                                )
+                                nominal = _Nominal.measured(ls)
                                 model = None
                                 remeasured += 1
                                 if not np.isfinite(nominal.cost):
@@ -362,14 +368,17 @@ def _iterate(method, env, view, cfg, q, identify, u_init, callback, noisy, n_fwd
     )
 
 
-def _on_device(x) -> jax.Array:
-    """A float64 (or float32) array committed to the default device.
+def _on_device(x):
+    """``x`` committed to the default device: a number or NumPy array becomes a
+    float64 (or float32) array, a pytree of arrays (``EnvData``) keeps its types.
 
     Driver-made arrays must be committed like the jitted stages' outputs they
     alternate with: JAX keys its compilation cache on whether an argument is
     committed, and mixing the two compiles every stage twice.
     """
-    return jax.device_put(jnp.asarray(x, dtype=jnp.result_type(float)), jax.devices()[0])
+    if isinstance(x, (int, float, np.ndarray, np.generic)):
+        x = jnp.asarray(x, dtype=jnp.result_type(float))
+    return jax.device_put(x, jax.devices()[0])
 
 
 def _initial_controls(u_init, dims) -> jnp.ndarray:

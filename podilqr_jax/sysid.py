@@ -74,20 +74,31 @@ def regression_data(z, u, z_bar, u_bar, q: int):
     return X, Y
 
 
+def fit_each_step(z, u, inputs, q: int, solve) -> tuple[LinearModel, FitReport]:
+    """The per-step fit as a ``lax.scan`` over time, shared by every estimator.
+
+    ``inputs`` are time-major arrays whose first two are the regressors X and
+    targets Y of ``regression_data``; ``solve(X_t, Y_t, ...)`` returns
+    (W [nZ + nu, nz], rank, residual [n_s, nz]).
+    """
+    nz, nu = z.shape[-1], u.shape[-1]
+    all_finite = jnp.all(jnp.isfinite(z)) & jnp.all(jnp.isfinite(u))
+
+    def step(_, xs):
+        W, rank, res = solve(*xs)
+        A_t, B_t = companion(W.T, nz, nu, q)  # theta = W' [nz, nZ + nu]
+        return None, (A_t, B_t, jnp.sqrt(jnp.mean(res**2)), jnp.sqrt(jnp.mean(xs[1] ** 2)), rank)
+
+    _, (A, B, res, tgt, rank) = jax.lax.scan(step, None, inputs)
+    return LinearModel(A, B), FitReport(res, tgt, rank, all_finite)
+
+
 @functools.partial(jax.jit, static_argnames=("q",))
 def fit_information_model(z, u, z_bar, u_bar, q: int, rcond) -> tuple[LinearModel, FitReport]:
     """Fit Theta_t by least squares at every step (a ``lax.scan`` over time)."""
-    nz, nu = z.shape[-1], u.shape[-1]
-    all_finite = jnp.all(jnp.isfinite(z)) & jnp.all(jnp.isfinite(u))
-    X, Y = regression_data(z, u, z_bar, u_bar, q)
 
-    def step(_, xy):
-        X_t, Y_t = xy
+    def solve(X_t, Y_t):
         W, rank = least_squares(X_t, Y_t, rcond)
-        theta = W.T  # [nz, nZ + nu]
-        A_t, B_t = companion(theta, nz, nu, q)
-        res = Y_t - X_t @ W
-        return None, (A_t, B_t, jnp.sqrt(jnp.mean(res**2)), jnp.sqrt(jnp.mean(Y_t**2)), rank)
+        return W, rank, Y_t - X_t @ W
 
-    _, (A, B, res, tgt, rank) = jax.lax.scan(step, None, (X, Y))
-    return LinearModel(A, B), FitReport(res, tgt, rank, all_finite)
+    return fit_each_step(z, u, regression_data(z, u, z_bar, u_bar, q), q, solve)
