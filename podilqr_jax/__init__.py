@@ -29,21 +29,33 @@ from .config import SolverConfig as SolverConfig
 from .env import Env as Env
 from .env import EnvData as EnvData
 from .env import EnvDims as EnvDims
+from .episodes import EpisodeNoise as EpisodeNoise
+from .episodes import Episodes as Episodes
+from .episodes import run_episodes as run_episodes
 from .errors import ConfigError as ConfigError
 from .errors import ModelLoadError as ModelLoadError
 from .errors import PodIlqrError as PodIlqrError
 from .errors import TaskError as TaskError
 from .estimators import ESTIMATORS as ESTIMATORS
 from .estimators import fit_information_model_iv as fit_information_model_iv
+from .evaluate import EvaluateSettings as EvaluateSettings
+from .evaluate import evaluate as evaluate
 from .evaluation import TrueCosts as TrueCosts
 from .evaluation import true_costs as true_costs
 from .info_state import companion as companion
 from .info_state import info_states as info_states
+from .kalman import EstimatorNoise as EstimatorNoise
+from .kalman import estimator_policy as estimator_policy
+from .kalman import identify_about_nominal as identify_about_nominal
 from .model_based import linearise as linearise
 from .noise import NoiseModel as NoiseModel
+from .policy import FeedbackPolicy as FeedbackPolicy
+from .policy import PolicyState as PolicyState
+from .replan import replan_episodes as replan_episodes
 from .result import IterationInfo as IterationInfo
 from .result import Result as Result
 from .result import Status as Status
+from .result import load_result as load_result
 from .rollout import Policy as Policy
 from .rollout import Trajectory as Trajectory
 from .rollout import rollout_batch as rollout_batch
@@ -65,12 +77,18 @@ __all__ = [
     "EnvData",
     "EnvDims",
     "ESTIMATORS",
+    "EpisodeNoise",
+    "Episodes",
+    "EstimatorNoise",
+    "EvaluateSettings",
+    "FeedbackPolicy",
     "IterationInfo",
     "LinearModel",
     "ModelLoadError",
     "NoiseModel",
     "Policy",
     "PodIlqrError",
+    "PolicyState",
     "QuadraticCost",
     "Result",
     "SolverConfig",
@@ -83,11 +101,17 @@ __all__ = [
     "backward_pass",
     "companion",
     "default_config",
+    "estimator_policy",
+    "evaluate",
     "fit_information_model",
     "fit_information_model_iv",
+    "identify_about_nominal",
     "info_states",
     "linearise",
+    "load_result",
     "make_task",
+    "replan_episodes",
+    "run_episodes",
     "rollout_batch",
     "simulate",
     "solve",

@@ -29,12 +29,13 @@ k [T, nu], K [T, nu, nZ], g [T, nu].
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
 
+from .cost import running_weights
 from .sysid import LinearModel
 
 
@@ -46,6 +47,7 @@ class QuadraticCost(NamedTuple):
     Q: jnp.ndarray  # [nz, nz]
     QT: jnp.ndarray  # [nz, nz]
     R: jnp.ndarray  # [nu, nu]
+    goal_step: Optional[jnp.ndarray] = None  # steps t >= goal_step weigh QT (cost.running_weights)
 
 
 class Regularisation(NamedTuple):
@@ -68,18 +70,19 @@ class BackwardResult(NamedTuple):
 
 def riccati(model: LinearModel, Z_bar, u_bar, cost: QuadraticCost, mu) -> BackwardResult:
     """One backward sweep at a fixed regularisation ``mu`` (a ``lax.scan``)."""
-    S, zt, Q, QT, R = cost
+    S, zt, Q, QT, R, goal = cost
     nZ = S.shape[1]
+    Q_t = running_weights(Q, QT, u_bar.shape[0], goal)
     eye = jnp.eye(nZ, dtype=Z_bar.dtype)
     e_T = S @ Z_bar[-1] - zt
     v_T = 2.0 * S.T @ QT @ e_T
     V_T = 2.0 * S.T @ QT @ S
-    l_ZZ = 2.0 * S.T @ Q @ S
     l_uu = 2.0 * R
 
     def step(carry, inp):
         v, V, lam, ok = carry
-        A, B, Z_t, u_t = inp
+        A, B, Z_t, u_t, Q = inp
+        l_ZZ = 2.0 * S.T @ Q @ S
         l_Z = 2.0 * S.T @ Q @ (S @ Z_t - zt)
         l_u = 2.0 * R @ u_t
         Q_Z = l_Z + A.T @ v
@@ -104,7 +107,7 @@ def riccati(model: LinearModel, Z_bar, u_bar, cost: QuadraticCost, mu) -> Backwa
         return (v_new, V_new, lam_new, ok & pd), (k, K, g, dv)
 
     init = (v_T, V_T, v_T, jnp.array(True))
-    (_, _, _, ok), (k, K, g, dv) = jax.lax.scan(step, init, (model.A, model.B, Z_bar[:-1], u_bar), reverse=True)
+    (_, _, _, ok), (k, K, g, dv) = jax.lax.scan(step, init, (model.A, model.B, Z_bar[:-1], u_bar, Q_t), reverse=True)
     dV = jnp.sum(dv, axis=0)
     return BackwardResult(k, K, dV[0], dV[1], g, jnp.asarray(mu, Z_bar.dtype), ok)
 

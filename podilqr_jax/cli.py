@@ -5,6 +5,10 @@
                      [--set key=value ...] [--out result.json] [--no-plots]
   podilqr reproduce [--quick] [--seeds N] [--systems pendulum,cartpole]
                     [--no-sweep] [--out DIR]
+  podilqr evaluate RESULT [--noise 0,0.1,0.2,0.3,0.5] [--quick] [--task TASK]
+                    [--episodes N] [--system-noise SPEC] [--no-replan]
+                    [--no-estimator] [--replan-every N] [--u-limit X]
+                    [--model-error X] [--seed S] [--out DIR]
   podilqr tasks
 
 TASK is a bundled task name (``podilqr tasks`` lists them) or a task file
@@ -73,6 +77,45 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--no-sweep", action="store_true", help="skip the sigma sweep")
     r.add_argument("--out", default="runs/reproduce", help="output folder (summary.json, figures, table.md)")
     r.set_defaults(func=_cmd_reproduce)
+    e = sub.add_parser("evaluate", help="Monte Carlo evaluation of a solve's controllers over noise levels")
+    e.add_argument("result", help="a result JSON written by `podilqr solve --out`")
+    e.add_argument(
+        "--noise",
+        default=None,
+        metavar="LEVELS",
+        help="comma-separated noise levels: actuator noise std as a fraction of the largest nominal control "
+        "(measurement noise scales with it); default 0,0.1,0.2,0.3,0.5 (quick: 0,0.1,0.3)",
+    )
+    e.add_argument("--quick", action="store_true", help="3 levels, 64 episodes, 4 replanning episodes")
+    e.add_argument("--task", default=None, help="the task the result was solved on (default: its recorded name)")
+    e.add_argument("--episodes", type=int, default=None, help="episodes per controller and level (default 256)")
+    e.add_argument("--replan-episodes", type=int, default=None, help="episodes of the replanning controller")
+    e.add_argument("--replan-every", type=int, default=None, help="steps between replans (default horizon/3)")
+    e.add_argument("--replan-iterations", type=int, default=None, help="POD-iLQR iterations per replan (default 5)")
+    e.add_argument("--no-replan", action="store_true", help="skip the receding-horizon controller")
+    e.add_argument("--no-estimator", action="store_true", help="skip the Kalman-estimator controller")
+    e.add_argument(
+        "--system-noise",
+        default=None,
+        metavar="SPEC",
+        help="extra state noise at every level: `paper`, `none` or initial=S0,process=SW,measurement=SV",
+    )
+    e.add_argument(
+        "--u-limit",
+        type=float,
+        default=None,
+        help="clip commands to +- this multiple of the largest nominal control where the model has no "
+        "ctrlrange (default 2; `inf` for none)",
+    )
+    e.add_argument(
+        "--model-error",
+        type=float,
+        default=None,
+        help="the Kalman estimator's allowance for model error, a share of the actuator noise (default 0.1)",
+    )
+    e.add_argument("--seed", type=int, default=None, help="PRNG seed of the episodes' noise (default 0)")
+    e.add_argument("--out", default="runs/evaluate", help="output folder (evaluate.json, evaluate.png, table.md)")
+    e.set_defaults(func=_cmd_evaluate)
     t = sub.add_parser("tasks", help="list the bundled tasks")
     t.set_defaults(func=_cmd_tasks)
     return parser
@@ -185,6 +228,64 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     rows = run_study(args.out, settings, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(format_table(rows))
     print(f"wrote {args.out}/summary.json, fig2_true_cost.png, sigma_sweep.png, table.md", file=sys.stderr)
+    return 0
+
+
+def _parse_levels(text: str) -> tuple[float, ...]:
+    from .errors import ConfigError
+
+    try:
+        levels = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        levels = ()
+    if not levels:
+        raise ConfigError(
+            f"--noise expects comma-separated noise levels >= 0 (fractions of the largest control), "
+            f"e.g. 0,0.1,0.3; got {text!r}."
+        )
+    return levels
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from .config import fully_observed
+    from .evaluate import EvaluateSettings, format_table, run_evaluation
+    from .noise import NoiseModel
+    from .result import load_result
+    from .tasks import PAPER_S0
+
+    settings = EvaluateSettings.quick() if args.quick else EvaluateSettings()
+    changes: dict[str, Any] = {}
+    if args.noise is not None:
+        changes["levels"] = _parse_levels(args.noise)
+    for name in ("episodes", "replan_episodes", "replan_every", "replan_iterations", "u_limit", "model_error", "seed"):
+        if getattr(args, name) is not None:
+            changes[name] = getattr(args, name)
+    if args.no_replan:
+        changes["replan"] = False
+    if args.no_estimator:
+        changes["estimator"] = False
+    result = load_result(args.result)
+    env = load_env(args.task or result.task)
+    if args.system_noise is not None:
+        spec = _parse_noise(args.system_noise)
+        changes["system_noise"] = (
+            NoiseModel.paper(PAPER_S0, partial=not fully_observed(env)) if spec == "paper" else spec
+        )
+    settings = dataclasses.replace(settings, **changes)
+    train_env = env.replace(noise=result.noise) if result.noisy else env
+    _check_writable(os.path.join(args.out, "evaluate.json"))
+    print(f"evaluating {args.result} ({result.task}, {result.variant}) into {args.out}", file=sys.stderr)
+    report = run_evaluation(
+        result,
+        env,
+        args.out,
+        settings,
+        train_env=train_env,
+        progress=lambda msg: print(msg, file=sys.stderr, flush=True),
+    )
+    print("mean cost / model-based optimum +- std (success rate):")
+    print(format_table(report))
+    print(f"wrote {args.out}/evaluate.json, evaluate.png, table.md", file=sys.stderr)
     return 0
 
 

@@ -56,6 +56,7 @@ class EnvData(NamedTuple):
     QT: jnp.ndarray  # [nz, nz] terminal cost
     R: jnp.ndarray  # [nu, nu] control cost
     noise: NoiseLevels  # standard deviations of dx0, w_t, v_t
+    goal_step: jnp.ndarray  # int: running steps t >= goal_step cost with QT (default horizon: none do)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -203,6 +204,7 @@ class Env:
             QT=jnp.asarray(QTm),
             R=jnp.asarray(Rm),
             noise=noise_levels(noise_model, nq + nv, nz),
+            goal_step=jnp.asarray(int(horizon)),
         )
         return cls(
             name=name,
@@ -240,7 +242,27 @@ class Env:
         )
         kwargs.update(changes)
         env = Env.from_model(self.mj_model, **kwargs)
-        return dataclasses.replace(env, observation_labels=self.observation_labels)
+        env = dataclasses.replace(env, observation_labels=self.observation_labels)
+        goal = int(self.data.goal_step)
+        return env if goal == self.dims.horizon or "horizon" in changes else env.with_goal_step(goal)
+
+    def with_start_state(self, x0) -> "Env":
+        """A copy starting from the state ``x0`` = [qpos, qvel] (the same MJX
+        model and cost; traced, so solving from it never recompiles)."""
+        x = np.asarray(x0, dtype=float)
+        if x.shape != (self.dims.nx,) or not np.all(np.isfinite(x)):
+            raise TaskError(f"`x0` must be {self.dims.nx} finite numbers (qpos then qvel); got {x0!r}.")
+        return dataclasses.replace(self, data=self.data._replace(x0=jnp.asarray(x, self.data.x0.dtype)))
+
+    def with_goal_step(self, step: int) -> "Env":
+        """A copy whose running cost uses QT from step ``step`` on: the target
+        is to be reached by ``step`` and held to the horizon. ``step = horizon``
+        (the default) is the ordinary cost. Traced: changing it never
+        recompiles (receding-horizon replanning uses it, see ``replan``)."""
+        T = self.dims.horizon
+        if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or not 0 <= step <= T:
+            raise TaskError(f"`goal_step` must be an integer in 0 .. horizon = {T}; got {step!r}.")
+        return dataclasses.replace(self, data=self.data._replace(goal_step=jnp.asarray(int(step))))
 
     def full_state_view(self) -> "Env":
         """The same task seen through the full state x (C = I).

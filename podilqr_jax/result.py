@@ -104,6 +104,14 @@ class Result:
         """The final policy's cost on the noiseless system (closed loop)."""
         return self.true_cost_history[-1] if self.true_cost_history else self.final_cost
 
+    def policy(self, name: str | None = None):
+        """This solve as a controller (:class:`~podilqr_jax.policy.FeedbackPolicy`):
+        u_t = controls_t + K_t (Z_t - info_states_t) on the measured
+        information state (on the full state for a model-based result)."""
+        from .policy import FeedbackPolicy
+
+        return FeedbackPolicy.from_result(self, name)
+
     @property
     def converged(self) -> bool:
         return self.status == Status.CONVERGED
@@ -150,6 +158,7 @@ class Result:
             "controls": self.controls.tolist(),
             "observations": self.observations.tolist(),
             "states": self.states.tolist(),
+            "info_states": self.info_states.tolist(),
             "K": self.K.tolist(),
             "k": self.k.tolist(),
             "q": self.q,
@@ -170,6 +179,52 @@ class Result:
     def save_json(self, path: str | os.PathLike) -> None:
         """Write the result as JSON atomically (a temporary file, then rename)."""
         write_json_atomic(path, self.to_dict())
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Result":
+        """The inverse of :meth:`to_dict` (JSON nulls become NaN)."""
+        fields = {f.name for f in dataclasses.fields(cls)}
+        kwargs = {k: v for k, v in d.items() if k in fields}
+        for name in ("controls", "observations", "states", "K", "k"):
+            kwargs[name] = np.asarray(d[name], dtype=float)
+        if "info_states" in d:
+            kwargs["info_states"] = np.asarray(d["info_states"], dtype=float)
+        else:  # written before info_states were saved: rebuild them from the nominal
+            from .info_state import info_states
+
+            kwargs["info_states"] = np.asarray(info_states(kwargs["observations"], kwargs["controls"], int(d["q"])))
+        for name in ("cost_history", "true_cost_history", "open_loop_cost_history"):
+            kwargs[name] = [math.nan if v is None else float(v) for v in d.get(name, [])]
+        kwargs["status"] = Status(d["status"])
+        kwargs["observation_labels"] = tuple(d.get("observation_labels", ()))
+        kwargs["state_labels"] = tuple(d.get("state_labels", ()))
+        return cls(**kwargs)
+
+
+def load_result(path: str | os.PathLike) -> Result:
+    """A result written by ``Result.save_json`` or ``podilqr solve --out``."""
+    from .errors import ConfigError
+
+    try:
+        with open(path) as f:
+            d = json.load(f)
+    except FileNotFoundError:
+        raise ConfigError(
+            f"No result file at {os.fspath(path)!r}; write one with `podilqr solve TASK --out PATH`."
+        ) from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"Cannot read the result file {os.fspath(path)!r}: {exc}.") from None
+    required = ("method", "task", "status", "controls", "observations", "states", "K", "k", "q", "cost_history")
+    missing = [k for k in required if k not in d] if isinstance(d, dict) else list(required)
+    if missing:
+        raise ConfigError(
+            f"{os.fspath(path)!r} is not a podilqr result (missing {', '.join(missing)}); "
+            "give the JSON written by `podilqr solve --out`."
+        )
+    try:
+        return Result.from_dict(d)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"The result file {os.fspath(path)!r} is malformed: {exc}.") from None
 
 
 def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:

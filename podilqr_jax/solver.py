@@ -161,7 +161,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
     t_start = time.perf_counter()
     nZ = info_dim(dims.nz, dims.nu, q)
     u0 = _initial_controls(u_init, dims)
-    cost_model = QuadraticCost(observation_selector(dims.nz, dims.nu, q), data.z_target, data.Q, data.QT, data.R)
+    selector = observation_selector(dims.nz, dims.nu, q)
+    cost_model = QuadraticCost(selector, data.z_target, data.Q, data.QT, data.R, data.goal_step)
     reg = Regularisation(_on_device(cfg.mu_min), _on_device(cfg.mu_max), _on_device(cfg.mu_factor))
     steps = 0.5 ** np.arange(cfg.n_alphas)
     # Under noise alpha = 0 is the last candidate: when nothing is accepted it
@@ -286,7 +287,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                                 if not np.isfinite(nominal.cost):
                                     stop = (Status.NONFINITE, "a re-measured nominal rollout is not finite")
                             else:
-                                predicted = float(ls.expected[0])
+                                # indexed on the host: an eager jnp index would compile a kernel
+                                predicted = float(np.asarray(ls.expected)[0])
                                 if abs(predicted) < cfg.rtol * abs(nominal.cost):
                                     stop = (
                                         Status.CONVERGED,
