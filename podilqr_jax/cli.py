@@ -9,6 +9,7 @@
                     [--episodes N] [--system-noise SPEC] [--no-replan]
                     [--no-estimator] [--replan-every N] [--u-limit X]
                     [--model-error X] [--seed S] [--out DIR]
+  podilqr bench [--quick] [--tasks pendulum-full,cartpole-full] [--out DIR]
   podilqr tasks
 
 TASK is a bundled task name (``podilqr tasks`` lists them) or a task file
@@ -30,6 +31,9 @@ EXIT_INPUT_ERROR = 2
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["bench"]:
+        return _cmd_bench(argv[1:])
     parser = _parser()
     args = parser.parse_args(argv)
     if args.command is None:
@@ -116,6 +120,12 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--seed", type=int, default=None, help="PRNG seed of the episodes' noise (default 0)")
     e.add_argument("--out", default="runs/evaluate", help="output folder (evaluate.json, evaluate.png, table.md)")
     e.set_defaults(func=_cmd_evaluate)
+    sub.add_parser(
+        "bench",
+        help="benchmark: n_s x n_avg grid, phases, native/serial baselines, memory, devices "
+        "(`podilqr bench --help`; needs the source tree's benchmarks/)",
+        add_help=False,
+    )
     t = sub.add_parser("tasks", help="list the bundled tasks")
     t.set_defaults(func=_cmd_tasks)
     return parser
@@ -195,6 +205,24 @@ def _parse_noise(text: str):
                 f"--noise expects `paper`, `none` or initial=S0,process=SW,measurement=SV (numbers); got {text!r}."
             ) from None
     return NoiseModel.from_any(fields)
+
+
+def _cmd_bench(argv: list[str]) -> int:
+    """Run benchmarks/bench.py of the source tree (the benchmarks are not installed)."""
+    import importlib.util
+
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks", "bench.py")
+    if not os.path.exists(path):
+        _fail(
+            f"`podilqr bench` runs benchmarks/bench.py from the source tree, which is not at {path}: "
+            "clone the repository and install it with `pip install -e .`."
+        )
+        return EXIT_INPUT_ERROR
+    spec = importlib.util.spec_from_file_location("podilqr_bench", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module.main(argv)
 
 
 def _cmd_tasks(args: argparse.Namespace) -> int:

@@ -69,6 +69,10 @@ class SolverConfig:
         perturbations and older outputs as instruments, consistent under
         measurement noise at n_avg = 1; see ``estimators`` and
         docs/estimators.md). Works with every variant.
+      memory_budget_mb: the sysid batch (n_s x n_avg rollouts) runs in chunks
+        that fit this budget (``rollout.bytes_per_rollout`` estimates a
+        rollout's share); a batch that fits runs at once.
+      rollout_chunk: rollouts per chunk, overriding the budget.
     """
 
     q: Optional[int] = None
@@ -90,6 +94,8 @@ class SolverConfig:
     n_forward: Optional[int] = None
     mu_cap: float = 1e3
     estimator: str = "ols"
+    memory_budget_mb: float = 2048.0
+    rollout_chunk: Optional[int] = None
 
     def replace(self, **changes: Any) -> "SolverConfig":
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
@@ -109,6 +115,15 @@ class SolverConfig:
         if self.n_avg is not None:
             return self.n_avg
         return 10 if self.variant == "averaged" else 1
+
+    def resolved_chunk(self, bytes_per_rollout: int) -> int:
+        """Rollouts per chunk of the sysid batch: ``rollout_chunk`` when set,
+        else as many whole repeat groups as ``memory_budget_mb`` holds."""
+        if self.rollout_chunk is not None:
+            return self.rollout_chunk
+        fit = int(self.memory_budget_mb * 2**20 // max(1, bytes_per_rollout))
+        n_avg = self.resolved_n_avg()
+        return max(n_avg, fit - fit % n_avg)
 
     def resolved_n_forward(self) -> int:
         if self.n_forward is not None:
@@ -131,6 +146,9 @@ class SolverConfig:
                         f"set variant='averaged' or drop {name}."
                     )
         _positive("mu_cap", self.mu_cap)
+        _positive("memory_budget_mb", self.memory_budget_mb)
+        if self.rollout_chunk is not None:
+            _int("rollout_chunk", self.rollout_chunk, 1)
         if self.estimator not in ESTIMATORS:
             raise ConfigError(
                 f"Unknown estimator {self.estimator!r}; choose one of {', '.join(ESTIMATORS)} (see docs/estimators.md)."

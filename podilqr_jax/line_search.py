@@ -31,7 +31,7 @@ from .cost import batch_costs
 from .env import EnvData, EnvDims
 from .info_state import info_states
 from .noise import sample_noise
-from .rollout import Policy, Trajectory, average_repeats, simulate
+from .rollout import Policy, Trajectory, average_repeats, shard_batch, simulate
 
 
 class LineSearchResult(NamedTuple):
@@ -65,6 +65,7 @@ def line_search(
         offsets = jnp.repeat(offsets, n_fwd, axis=0)
     no_perturbation = jnp.zeros((dims.horizon, dims.nu), k.dtype)
     noise = sample_noise(key, data.noise, offsets.shape[0], dims.horizon) if noisy else None
+    offsets, noise = shard_batch((offsets, noise), offsets.shape[0])
     traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True, noise=noise)
     traj = average_repeats(traj, n_fwd)
     cost, finite = batch_costs(traj.z, traj.u, data)

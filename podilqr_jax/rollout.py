@@ -10,8 +10,16 @@ observations and applied controls (see ``info_state``). Sysid rollouts use
 ``offset = alpha k`` and ``du = 0``; with ``K = 0`` the rollout is open loop.
 
 A batch is one ``vmap`` over the leading axis of whichever of ``offset``,
-``du`` and ``noise`` carry one; nothing loops over rollouts in Python, so the
-batch axis can be sharded across devices.
+``du`` and ``noise`` carry one; nothing loops over rollouts in Python.
+
+Scale (docs/performance.md): with several devices (``jax.devices()``: GPUs,
+or CPU devices from ``XLA_FLAGS=--xla_force_host_platform_device_count=N``,
+or every host's devices after ``jax.distributed.initialize()``) the sysid and
+line-search batches are sharded over a one-axis device mesh (``batch_sharding``)
+when the batch divides evenly; every rollout runs the same operations as on
+one device, so the results are the same. A sysid batch larger than ``chunk``
+rollouts runs as a ``lax.map`` over chunks of whole repeat groups, so memory
+grows with the chunk, not with n_s x n_avg.
 
 Noise (see ``noise``): with a :class:`~podilqr_jax.noise.Noise` realisation per
 rollout the start state is x0 + dx_0, the process noise w_t is written into
@@ -31,6 +39,8 @@ from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
 from .env import EnvData, EnvDims
@@ -148,6 +158,47 @@ def average_repeats(traj: Trajectory, n_avg: int) -> Trajectory:
     return Trajectory(mean(traj.z), mean(traj.u), mean(traj.x))
 
 
+def batch_sharding(batch: int) -> Optional[NamedSharding]:
+    """The batch axis split over every device (a one-axis mesh), or None when
+    there is one device or ``batch`` does not divide evenly (then the batch
+    stays on the default device)."""
+    devices = jax.devices()
+    if len(devices) == 1 or batch % len(devices):
+        return None
+    return NamedSharding(Mesh(np.array(devices), ("batch",)), PartitionSpec("batch"))
+
+
+def replicated():
+    """Where the driver puts its arrays: the default device, or replicated over
+    every device of the batch mesh when there are several (arrays committed to
+    one device cannot meet a batch sharded over all of them)."""
+    devices = jax.devices()
+    if len(devices) == 1:
+        return jax.sharding.SingleDeviceSharding(devices[0])
+    return NamedSharding(Mesh(np.array(devices), ("batch",)), PartitionSpec())
+
+
+def shard_batch(tree, batch: int):
+    """Constrain every array of ``tree`` (leading axis ``batch``) to ``batch_sharding``."""
+    sharding = batch_sharding(batch)
+    if sharding is None or tree is None:
+        return tree
+    return jax.tree_util.tree_map(lambda a: jax.lax.with_sharding_constraint(a, sharding), tree)
+
+
+def bytes_per_rollout(dims: EnvDims, data: EnvData, noisy: bool = True) -> int:
+    """A conservative estimate of the memory one sysid rollout holds while it
+    runs: its MJX data (carry and a step's temporaries, counted 8 times), its
+    inputs and outputs. Used to turn a memory budget into a chunk size; the
+    benchmark (docs/performance.md) measures the real peak."""
+    mjx_bytes = sum(np.asarray(leaf).nbytes for leaf in jax.tree_util.tree_leaves(mjx.make_data(data.model)))
+    T, nx = dims.horizon, dims.nx
+    floats = (T + 1) * dims.nz + 2 * T * dims.nu  # z, u, du
+    if noisy:
+        floats += nx + T * nx + (T + 1) * dims.nz  # dx0, w, v
+    return int(8 * mjx_bytes + 8 * floats)
+
+
 rollout_batch = jax.jit(simulate, static_argnames=("dims", "q", "record_state"))
 rollout_batch.__doc__ = """Jitted :func:`simulate`: a batch of rollouts for given perturbations ``du``
 [B, T, nu] (and/or offsets), returning observations z [B, T+1, nz] and applied
@@ -161,7 +212,7 @@ def injected_perturbations(key: jax.Array, sigma, n_s: int, horizon: int, nu: in
     return sigma * jax.random.normal(key, (n_s, horizon, nu), dtype=dtype)
 
 
-@functools.partial(jax.jit, static_argnames=("dims", "q", "n_s", "n_avg", "noisy"))
+@functools.partial(jax.jit, static_argnames=("dims", "q", "n_s", "n_avg", "noisy", "chunk"))
 def perturbation_rollouts(
     dims: EnvDims,
     q: int,
@@ -172,6 +223,7 @@ def perturbation_rollouts(
     sigma: jnp.ndarray,
     n_avg: int = 1,
     noisy: bool = False,
+    chunk: Optional[int] = None,
 ) -> Trajectory:
     """The sysid rollouts: u = u_bar + K dZ + du with du ~ N(0, sigma^2 I).
 
@@ -179,10 +231,38 @@ def perturbation_rollouts(
     (different noise, one batch of n_s x n_avg rollouts) and the mean of its
     repeats (observations and applied controls) is returned, [n_s, ...]. With
     ``noisy`` every rollout draws the noise of ``data.noise``.
+
+    With ``chunk`` < n_s x n_avg the batch runs as a ``lax.map`` over chunks of
+    ``chunk // n_avg`` perturbation sequences (``_chunked``): the same du, and
+    under noise per-sequence noise keys, so the result does not depend on the
+    chunk size (it draws different noise than the single batch, from the same
+    distribution).
     """
     du = injected_perturbations(key, sigma, n_s, dims.horizon, dims.nu, policy.u_bar.dtype)
+    noise_key = jax.random.fold_in(key, 1)
+    if chunk is not None and n_s * n_avg > chunk:
+        return _chunked(dims, q, data, policy, du, noise_key, n_avg, noisy, max(1, chunk // n_avg))
     if n_avg > 1:
         du = jnp.repeat(du, n_avg, axis=0)
-    noise = sample_noise(jax.random.fold_in(key, 1), data.noise, n_s * n_avg, dims.horizon) if noisy else None
+    batch = n_s * n_avg
+    noise = sample_noise(noise_key, data.noise, batch, dims.horizon) if noisy else None
+    du, noise = shard_batch((du, noise), batch)
     zero = jnp.zeros((dims.horizon, dims.nu), policy.u_bar.dtype)
     return average_repeats(simulate(dims, q, data, policy, zero, du, noise=noise), n_avg)
+
+
+def _chunked(dims, q, data, policy, du, noise_key, n_avg, noisy, per_chunk) -> Trajectory:
+    """The sysid batch as a ``lax.map`` over chunks of ``per_chunk`` sequences,
+    each sequence's ``n_avg`` repeats averaged inside its chunk."""
+    T, nu = dims.horizon, dims.nu
+    zero = jnp.zeros((T, nu), policy.u_bar.dtype)
+
+    def one(args):
+        du_j, key_j = args
+        noise = sample_noise(key_j, data.noise, n_avg, T) if noisy else None
+        traj = simulate(dims, q, data, policy, zero, jnp.broadcast_to(du_j, (n_avg, T, nu)), noise=noise)
+        return traj.z.mean(axis=0), traj.u.mean(axis=0)
+
+    keys = jax.random.split(noise_key, du.shape[0])
+    z, u = jax.lax.map(one, (du, keys), batch_size=per_chunk)
+    return Trajectory(z, u, None)

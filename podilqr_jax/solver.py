@@ -39,7 +39,7 @@ from .info_state import info_dim, observation_selector
 from .line_search import line_search
 from .model_based import linearise
 from .result import IterationInfo, Result, Status
-from .rollout import Policy, injected_perturbations, perturbation_rollouts
+from .rollout import Policy, bytes_per_rollout, injected_perturbations, perturbation_rollouts, replicated
 from .sysid import LinearModel, fit_information_model
 
 Callback = Callable[[IterationInfo], None]
@@ -81,12 +81,13 @@ def solve(
     noisy = env.noisy and cfg.variant != "nominal"
     feedback = cfg.variant != "plain"
     n_avg = cfg.resolved_n_avg()
+    chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy))
     no_gains = _on_device(np.zeros((dims.horizon, dims.nu, nZ)))
 
     def identify(key, nominal, gains):
         t0 = time.perf_counter()
         policy = nominal.policy(gains if feedback else no_gains)
-        traj = perturbation_rollouts(dims, q, cfg.n_s, data, policy, key, sigma, n_avg=n_avg, noisy=noisy)
+        traj = perturbation_rollouts(dims, q, cfg.n_s, data, policy, key, sigma, n_avg=n_avg, noisy=noisy, chunk=chunk)
         traj.z.block_until_ready()
         t1 = time.perf_counter()
         if cfg.estimator == "iv":
@@ -371,7 +372,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
 
 
 def _on_device(x):
-    """``x`` committed to the default device: a number or NumPy array becomes a
+    """``x`` committed to the default device (replicated over all devices when
+    there are several, see ``rollout.replicated``): a number or NumPy array becomes a
     float64 (or float32) array, a pytree of arrays (``EnvData``) keeps its types.
 
     Driver-made arrays must be committed like the jitted stages' outputs they
@@ -380,7 +382,7 @@ def _on_device(x):
     """
     if isinstance(x, (int, float, np.ndarray, np.generic)):
         x = jnp.asarray(x, dtype=jnp.result_type(float))
-    return jax.device_put(x, jax.devices()[0])
+    return jax.device_put(x, replicated())
 
 
 def _initial_controls(u_init, dims) -> jnp.ndarray:
