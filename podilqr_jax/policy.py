@@ -42,7 +42,6 @@ batched MJX rollout.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import NamedTuple
 
 import jax
@@ -244,7 +243,7 @@ def next_estimate(ctrl: Controller, t, xi: jnp.ndarray, u: jnp.ndarray, z_next: 
     return pred + ctrl.L[t + 1] @ (z_next - ctrl.z_bar[t + 1] - newest(pred, nz))
 
 
-@functools.partial(jax.jit, static_argnames=())
+@jax.jit
 def run_on_measurements(ctrl: Controller, z: jnp.ndarray) -> jnp.ndarray:
     """Controls [T, nu] the policy would command along a recorded measurement
     sequence z [T+1, nz] (the measured values fed back in turn). For checks."""
