@@ -137,13 +137,18 @@ def peak_device_mb() -> Optional[float]:
     return None if not stats else stats.get("peak_bytes_in_use", 0) / 2**20
 
 
+def warm_and_timed(env, cfg, iterations: int):
+    """A one-iteration solve that compiles every stage, then a timed solve of
+    ``iterations`` iterations; returns both results and the per-iteration walls."""
+    warm, timed, walls = warm_and_timed(env, cfg, iterations)
+    return warm, timed, walls
+
+
 def grid_cell(task: str, n_s: int, n_avg: int, iterations: int) -> dict[str, Any]:
     """One (n_s, n_avg) cell: warm-up solve, then a timed solve."""
     env = pj.make_task(task, noise="paper")
     cfg = pj.default_config(env, variant="averaged", n_s=n_s, n_avg=n_avg, n_forward=1)
-    warm = pj.solve(env, cfg.replace(max_iterations=1))
-    walls: list[float] = []
-    timed = pj.solve(env, cfg.replace(max_iterations=iterations), callback=lambda info: walls.append(info.wall_s))
+    warm, timed, walls = warm_and_timed(env, cfg, iterations)
     dims = env.dims
     per_iter = timed.rollouts / timed.iterations
     median = float(np.median(walls))
@@ -176,9 +181,7 @@ def serial_comparison(task: str, n_s: int, iterations: int, time_to_cost: bool) 
     env = pj.make_task(task)
     cfg = pj.default_config(env, n_s=n_s)
     serial = serial_solve(env, cfg.replace(max_iterations=iterations))
-    warm = pj.solve(env, cfg.replace(max_iterations=1))  # compiles every stage
-    walls: list[float] = []
-    ours = pj.solve(env, cfg.replace(max_iterations=iterations), callback=lambda info: walls.append(info.wall_s))
+    warm, ours, walls = warm_and_timed(env, cfg, iterations)
     out = {
         "task": task,
         "n_s": n_s,

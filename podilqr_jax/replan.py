@@ -80,11 +80,15 @@ def replan_episodes(
         raise ConfigError(f"`iterations` per replan must be >= 1; got {iterations}.")
     cfg = cfg.replace(max_iterations=iterations)
 
-    def policy_of(res) -> FeedbackPolicy:
-        policy = FeedbackPolicy.from_result(res)
-        return policy if feedback else policy.open_loop()
+    base = FeedbackPolicy.from_result(result)
+    if not feedback:
+        base = base.open_loop()
 
-    base = policy_of(result)
+    def policy_of(res) -> FeedbackPolicy:
+        """The re-solve's nominal and gains on the base policy's filter arrays."""
+        K = res.K if feedback else np.zeros_like(res.K)
+        return base.with_nominal(res.controls, res.info_states[:, : base.nz], K)
+
     segments = -(-T // every)
     noise = draw(key, levels, episodes, segments * every)
     dims, data = train_env.dims, train_env.data

@@ -158,6 +158,11 @@ def average_repeats(traj: Trajectory, n_avg: int) -> Trajectory:
     return Trajectory(mean(traj.z), mean(traj.u), mean(traj.x))
 
 
+def _batch_mesh() -> Mesh:
+    """Every device on one axis, ``batch``."""
+    return Mesh(np.array(jax.devices()), ("batch",))
+
+
 def batch_sharding(batch: int) -> Optional[NamedSharding]:
     """The batch axis split over every device (a one-axis mesh), or None when
     there is one device or ``batch`` does not divide evenly (then the batch
@@ -165,7 +170,7 @@ def batch_sharding(batch: int) -> Optional[NamedSharding]:
     devices = jax.devices()
     if len(devices) == 1 or batch % len(devices):
         return None
-    return NamedSharding(Mesh(np.array(devices), ("batch",)), PartitionSpec("batch"))
+    return NamedSharding(_batch_mesh(), PartitionSpec("batch"))
 
 
 def replicated():
@@ -175,7 +180,7 @@ def replicated():
     devices = jax.devices()
     if len(devices) == 1:
         return jax.sharding.SingleDeviceSharding(devices[0])
-    return NamedSharding(Mesh(np.array(devices), ("batch",)), PartitionSpec())
+    return NamedSharding(_batch_mesh(), PartitionSpec())
 
 
 def shard_batch(tree, batch: int):
