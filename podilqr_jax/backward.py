@@ -48,6 +48,8 @@ class QuadraticCost(NamedTuple):
     QT: jnp.ndarray  # [nz, nz]
     R: jnp.ndarray  # [nu, nu]
     goal_step: Optional[jnp.ndarray] = None  # steps t >= goal_step weigh QT (cost.running_weights)
+    u_low: Optional[jnp.ndarray] = None  # [nu] control box (box-DDP); None: unconstrained
+    u_high: Optional[jnp.ndarray] = None  # [nu]
 
 
 class Regularisation(NamedTuple):
@@ -68,9 +70,64 @@ class BackwardResult(NamedTuple):
     ok: jnp.ndarray  # every Qr_uu was positive definite (and mu <= mu_max)
 
 
+BOX_QP_ITERATIONS = 12
+BOX_QP_STEPS = 10
+
+
+def box_qp(H, g, lower, upper):
+    """min_x 1/2 x' H x + g' x  subject to  lower <= x <= upper (H positive definite).
+
+    Projected Newton (Bertsekas; as in Tassa, Mansard & Todorov 2014, box-DDP):
+    start from the unconstrained minimiser clipped to the box; at each
+    iteration the *clamped* set holds the coordinates at a bound whose gradient
+    pushes outward, a Newton step is taken on the free ones and a projected
+    backtracking search (steps 1, 1/2, ..., one batch) keeps the first that
+    lowers the objective. A fixed number of iterations (``BOX_QP_ITERATIONS``;
+    nu is small, so a few suffice) keeps it a static loop.
+
+    Returns (x, free [n] bool, Cholesky factor of H on the free block, with
+    the identity on the clamped rows and columns).
+    """
+    n = g.shape[0]
+    eye = jnp.eye(n, dtype=g.dtype)
+    betas = 0.5 ** jnp.arange(BOX_QP_STEPS, dtype=g.dtype)
+
+    def objective(x):
+        return 0.5 * x @ H @ x + g @ x
+
+    def free_block(x):
+        grad = g + H @ x
+        clamped = ((x <= lower) & (grad > 0)) | ((x >= upper) & (grad < 0))
+        free = ~clamped
+        H_free = jnp.where(free[:, None] & free[None, :], H, eye)
+        return grad, free, jnp.linalg.cholesky(H_free)
+
+    def iterate(_, x):
+        grad, free, L = free_block(x)
+        step = -cho_solve((L, True), jnp.where(free, grad, 0.0))
+        candidates = jnp.clip(x[None] + betas[:, None] * step[None], lower, upper)
+        values = jax.vmap(objective)(candidates)
+        better = values < objective(x)
+        return jnp.where(jnp.any(better), candidates[jnp.argmax(better)], x)
+
+    x0 = jnp.clip(-cho_solve((jnp.linalg.cholesky(H), True), g), lower, upper)
+    x = jax.lax.fori_loop(0, BOX_QP_ITERATIONS, iterate, x0)
+    _, free, L = free_block(x)
+    return x, free, L
+
+
 def riccati(model: LinearModel, Z_bar, u_bar, cost: QuadraticCost, mu) -> BackwardResult:
-    """One backward sweep at a fixed regularisation ``mu`` (a ``lax.scan``)."""
-    S, zt, Q, QT, R, goal = cost
+    """One backward sweep at a fixed regularisation ``mu`` (a ``lax.scan``).
+
+    With a control box (``cost.u_low``/``u_high``) the step k_t solves the box
+    QP u_low <= u_bar_t + k_t <= u_high (``box_qp``) and the feedback acts on
+    the free controls only: K_t = -[Qr_uu]_ff^{-1} [Qr_uZ]_f, zero rows for the
+    clamped ones (box-DDP). The gradient for the convergence test is then the
+    projected one (zero where a control sits on its bound and the gradient
+    pushes outward).
+    """
+    S, zt, Q, QT, R, goal, u_low, u_high = cost
+    box = u_low is not None
     nZ = S.shape[1]
     Q_t = running_weights(Q, QT, u_bar.shape[0], goal)
     eye = jnp.eye(nZ, dtype=Z_bar.dtype)
@@ -93,15 +150,23 @@ def riccati(model: LinearModel, Z_bar, u_bar, cost: QuadraticCost, mu) -> Backwa
         V_reg = V + mu * eye
         Qr_uu = l_uu + B.T @ V_reg @ B
         Qr_uZ = B.T @ V_reg @ A
-        L = jnp.linalg.cholesky(0.5 * (Qr_uu + Qr_uu.T))
+        H = 0.5 * (Qr_uu + Qr_uu.T)
+        L = jnp.linalg.cholesky(H)
         pd = jnp.all(jnp.isfinite(L))
         L = jnp.where(pd, L, jnp.eye(L.shape[0], dtype=L.dtype))
-        k = -cho_solve((L, True), Q_u)
-        K = -cho_solve((L, True), Qr_uZ)
+        if box:
+            H = jnp.where(pd, H, jnp.eye(H.shape[0], dtype=H.dtype))
+            k, free, L_free = box_qp(H, Q_u, u_low - u_t, u_high - u_t)
+            K = -cho_solve((L_free, True), jnp.where(free[:, None], Qr_uZ, 0.0))
+        else:
+            k = -cho_solve((L, True), Q_u)
+            K = -cho_solve((L, True), Qr_uZ)
         v_new = Q_Z + K.T @ Q_uu @ k + K.T @ Q_u + Q_uZ.T @ k
         V_new = Q_ZZ + K.T @ Q_uu @ K + K.T @ Q_uZ + Q_uZ.T @ K
         V_new = 0.5 * (V_new + V_new.T)
         g = l_u + B.T @ lam
+        if box:  # projected: no descent direction out of the box
+            g = jnp.where(((u_t <= u_low) & (g > 0)) | ((u_t >= u_high) & (g < 0)), 0.0, g)
         lam_new = l_Z + A.T @ lam
         dv = jnp.stack([k @ Q_u, 0.5 * k @ Q_uu @ k])
         return (v_new, V_new, lam_new, ok & pd), (k, K, g, dv)

@@ -3,6 +3,7 @@
   podilqr solve TASK [--method pod-ilqr|model-based] [--compare]
                      [--noise paper|none|initial=S0,process=SW,measurement=SV]
                      [--set key=value ...] [--out result.json] [--no-plots]
+                     [--checkpoint DIR [--every N]] [--resume DIR]
   podilqr reproduce [--quick] [--seeds N] [--systems pendulum,cartpole]
                     [--no-sweep] [--out DIR]
   podilqr evaluate RESULT [--noise 0,0.1,0.2,0.3,0.5] [--quick] [--task TASK]
@@ -14,7 +15,9 @@
 
 TASK is a bundled task name (``podilqr tasks`` lists them) or a task file
 (.toml / .json, see docs/task_files.md). Errors in the input print one
-paragraph and exit with status 2, without a traceback.
+paragraph and exit with status 2, without a traceback (docs/bad_input.md
+lists every case tried). Ctrl-C during ``podilqr solve`` writes the result
+after the last completed iteration and exits with status 130.
 """
 
 from __future__ import annotations
@@ -71,6 +74,19 @@ def _parser() -> argparse.ArgumentParser:
         "initial=S0,process=SW,measurement=SV (standard deviations); pick the algorithm with --set variant=...",
     )
     p.add_argument("--out", default="result.json", help="JSON result path (plots are written beside it)")
+    p.add_argument(
+        "--checkpoint",
+        default=None,
+        metavar="DIR",
+        help="save the solver state to DIR/checkpoint.npz (atomically) every --every iterations and at the end",
+    )
+    p.add_argument("--every", type=int, default=10, metavar="N", help="iterations between checkpoints (default 10)")
+    p.add_argument(
+        "--resume",
+        default=None,
+        metavar="DIR",
+        help="continue from the checkpoint in DIR (same task and settings; --set max_iterations may be raised)",
+    )
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--quiet", action="store_true", help="no live progress")
     p.set_defaults(func=_cmd_solve)
@@ -157,6 +173,11 @@ def _check_writable(path: str) -> None:
     directory = os.path.dirname(os.path.abspath(path)) or "."
     try:
         os.makedirs(directory, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise ConfigError(
+            f"Cannot create the output folder {directory!r}: a file of that name (or of a parent folder's) "
+            "is in the way. Choose another --out."
+        ) from None
     except OSError as exc:
         raise ConfigError(
             f"Cannot create the output folder {directory!r}: {exc.strerror}. Choose another --out."
@@ -329,16 +350,23 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     cfg = pj.default_config(env, **sets)
 
     runs = [args.method] + (["model-based"] if args.compare and args.method != "model-based" else [])
+    if "model-based" in runs:
+        env.full_state_view()  # refuses, before any solve, a task the reference cannot take
     results = []
-    for method in runs:
+    for i, method in enumerate(runs):
         fn = pj.solve if method == "pod-ilqr" else pj.solve_model_based
+        options = {}
+        if i == 0:  # checkpoints and resume belong to the main solve
+            options = dict(checkpoint=args.checkpoint, checkpoint_every=args.every, resume=args.resume)
         with _Progress(method, env.name, cfg.max_iterations, quiet=args.quiet) as progress:
-            results.append(fn(env, cfg, callback=progress.update))
+            results.append(fn(env, cfg, callback=progress.update, **options))
         print(results[-1].summary(), file=sys.stderr)
+        if results[-1].status == pj.Status.INTERRUPTED:
+            break
 
     main_result = results[0]
     payload = main_result.to_dict()
-    if len(results) > 1:
+    if len(results) > 1 and results[1].status != pj.Status.INTERRUPTED:
         # Under noise the comparison is the policy's true (noiseless, closed-loop) cost.
         payload["model_based_cost"] = results[1].final_cost
         payload["ratio_to_model_based"] = main_result.final_true_cost / results[1].final_cost
@@ -361,6 +389,9 @@ def _cmd_solve(args: argparse.Namespace) -> int:
             plot_trajectory(main_result, stem + "_trajectory.png"),
         ]
         print("wrote " + ", ".join(paths), file=sys.stderr)
+    if any(r.status == pj.Status.INTERRUPTED for r in results):
+        print(f"interrupted: {args.out} holds the result after the last completed iteration", file=sys.stderr)
+        return 130
     return 1 if main_result.status in (pj.Status.NONFINITE, pj.Status.NO_RESPONSE) else 0
 
 
@@ -399,9 +430,11 @@ class _Progress:
         )
         if info.true_cost == info.true_cost and info.true_cost != info.cost:
             stats += f"  true {info.true_cost:10.6g}"
+        if info.note:
+            stats += f"  ({info.note})"
         if self.bar is not None:
             self.bar.update(self.bar_id, completed=info.iteration, stats=stats)
-        elif info.iteration == 1 or info.iteration % 10 == 0:
+        elif info.iteration == 1 or info.iteration % 10 == 0 or info.note:
             self.console.print(f"{self.method} {self.task}: {stats}", highlight=False, soft_wrap=True)
 
     def __exit__(self, *exc: object) -> None:

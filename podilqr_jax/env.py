@@ -2,8 +2,11 @@
 
 Notation (shapes):
   x = [qpos, qvel]            state, [nx] with nx = nq + nv
-  z = C x                     observation, [nz]
-  u                           control (MuJoCo ``ctrl``), [nu]
+  z = C x + D s(x)            observation, [nz]: joint coordinates (rows of C)
+                              and named MuJoCo sensors s = ``sensordata`` (rows
+                              of D; only when ``EnvDims.sensors``)
+  u                           control (MuJoCo ``ctrl``), [nu], clamped to the
+                              model's ``ctrlrange`` where ``ctrllimited``
   T                           horizon in control steps; one control step is
                               ``substeps`` physics steps of the model's timestep
   cost  J = sum_{t<T} (z_t - z*)' Q (z_t - z*) + u_t' R u_t
@@ -39,6 +42,7 @@ class EnvDims:
     nz: int
     substeps: int
     horizon: int
+    sensors: bool = False  # some observation reads ``sensordata`` (needs mjx.forward)
 
     @property
     def nx(self) -> int:
@@ -49,7 +53,7 @@ class EnvData(NamedTuple):
     """Traced arrays of a task."""
 
     model: Any  # mjx.Model
-    C: jnp.ndarray  # [nz, nx] observation matrix
+    C: jnp.ndarray  # [nz, nx] observation matrix (zero rows for sensor channels)
     x0: jnp.ndarray  # [nx] start state (qpos, qvel)
     z_target: jnp.ndarray  # [nz]
     Q: jnp.ndarray  # [nz, nz] running cost on the observation error
@@ -57,6 +61,9 @@ class EnvData(NamedTuple):
     R: jnp.ndarray  # [nu, nu] control cost
     noise: NoiseLevels  # standard deviations of dx0, w_t, v_t
     goal_step: jnp.ndarray  # int: running steps t >= goal_step cost with QT (default horizon: none do)
+    D: jnp.ndarray  # [nz, nsensordata] sensor selection (used only when dims.sensors)
+    u_low: jnp.ndarray  # [nu] lower control limits (-inf where the actuator is not limited)
+    u_high: jnp.ndarray  # [nu] upper control limits (+inf where not limited)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -75,6 +82,7 @@ class Env:
     control_dt: float
     solver_defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     noise: NoiseModel = NoiseModel()
+    observation: Any = None  # the observation as given (kept by ``replace``)
 
     # ----------------------------------------------------------------- building
     @classmethod
@@ -99,9 +107,12 @@ class Env:
         Args:
           path: the MJCF file.
           observation: ``"full"`` (all of qpos and qvel), ``"qpos"`` (all
-            positions), a mapping ``{"qpos": [...], "qvel": [...]}`` whose
-            entries are indices or joint names, or a matrix ``C`` of shape
-            ``[nz, nq + nv]`` with full row rank.
+            positions), a mapping ``{"qpos": [...], "qvel": [...],
+            "sensors": [...]}`` whose qpos/qvel entries are indices or joint
+            names and whose sensors are names of the model's ``<sensor>``
+            elements (position or velocity stage: ``jointpos``, ``framepos``,
+            ``framequat``, ``jointvel``, ``velocimeter``, ...), or a matrix
+            ``C`` of shape ``[nz, nq + nv]`` with full row rank.
           substeps: physics steps per control step (control dt = substeps x
             the model's timestep).
           horizon: number of control steps T.
@@ -130,7 +141,7 @@ class Env:
         except Exception as exc:  # mujoco raises ValueError with its parser message
             raise ModelLoadError(
                 f"MuJoCo could not load {path!r}: {exc}. Fix the MJCF file "
-                "(MuJoCo's message above names the element and line)."
+                "(MuJoCo's message names the element and line)."
             ) from None
         return cls.from_model(
             mj_model,
@@ -179,11 +190,15 @@ class Env:
             raise ModelLoadError(
                 f"MJX cannot load the model {name!r}: {type(exc).__name__}: {exc}. "
                 "MJX supports a subset of MuJoCo (no `energy` flag, no fluid "
-                "forces, limited geom pairs, ...); remove the feature named above."
+                "forces, limited geom pairs, ...); remove or replace the feature it names."
             ) from None
 
-        C, labels = _observation_matrix(mj_model, observation)
+        obs = _observation_matrix(mj_model, observation)
+        C, labels = obs.C, obs.labels
         nz = C.shape[0]
+        if obs.sensors:
+            _check_sensors_run(mjx_model, name)
+        u_low, u_high = control_limits(mj_model)
         x0_vec = _start_state(mj_model, x0)
         if target is None:
             target_vec = C @ x0_vec
@@ -194,7 +209,7 @@ class Env:
         Rm = _cost_matrix("R", R, nu, "nu (number of controls)", definite=True)
         noise_model = NoiseModel.from_any(noise).validate(nq, nv)
 
-        dims = EnvDims(nq=nq, nv=nv, nu=nu, nz=nz, substeps=int(substeps), horizon=int(horizon))
+        dims = EnvDims(nq=nq, nv=nv, nu=nu, nz=nz, substeps=int(substeps), horizon=int(horizon), sensors=obs.sensors)
         data = EnvData(
             model=mjx_model,
             C=jnp.asarray(C),
@@ -205,6 +220,9 @@ class Env:
             R=jnp.asarray(Rm),
             noise=noise_levels(noise_model, nq + nv, nz),
             goal_step=jnp.asarray(int(horizon)),
+            D=jnp.asarray(obs.D),
+            u_low=jnp.asarray(u_low),
+            u_high=jnp.asarray(u_high),
         )
         return cls(
             name=name,
@@ -215,6 +233,7 @@ class Env:
             control_dt=float(mj_model.opt.timestep) * int(substeps),
             solver_defaults=dict(solver_defaults or {}),
             noise=noise_model,
+            observation=observation,
         )
 
     # --------------------------------------------------------------- variations
@@ -228,7 +247,7 @@ class Env:
             raise TaskError(f"Env.replace got unknown field(s) {sorted(unknown)}; allowed: {sorted(allowed)}.")
         d = self.data
         kwargs = dict(
-            observation=np.asarray(d.C),
+            observation=np.asarray(d.C) if self.observation is None else self.observation,
             substeps=self.dims.substeps,
             horizon=self.dims.horizon,
             x0=np.asarray(d.x0),
@@ -271,6 +290,13 @@ class Env:
         Q_x = C' Q C, QT_x = C' QT C and x* = C^+ z* (exact because C has full
         row rank). Used by the model-based iLQR, which works on the state.
         """
+        if self.dims.sensors:
+            raise TaskError(
+                f"The task {self.name!r} observes MuJoCo sensors that are not state coordinates "
+                f"({', '.join(lab for lab in self.observation_labels if lab.startswith('sensor:'))}); "
+                "the model-based reference needs a cost on the state (observe joints or a matrix C). "
+                "POD-iLQR itself solves it (podilqr solve without --compare or --method model-based)."
+            )
         C = np.asarray(self.data.C)
         nx = self.dims.nx
         x_target = np.linalg.pinv(C) @ np.asarray(self.data.z_target)
@@ -280,6 +306,7 @@ class Env:
             Q=jnp.asarray(C.T @ np.asarray(self.data.Q) @ C),
             QT=jnp.asarray(C.T @ np.asarray(self.data.QT) @ C),
             noise=self.data.noise._replace(v=jnp.zeros(nx)),
+            D=jnp.zeros((nx, self.data.D.shape[1])),
         )
         dims = dataclasses.replace(self.dims, nz=nx)
         labels = _state_labels(self.mj_model)
@@ -290,6 +317,13 @@ class Env:
         return _state_labels(self.mj_model)
 
     @property
+    def limited(self) -> bool:
+        """True when some actuator has a ctrlrange (rollouts clamp to it and
+        the backward pass solves a box-constrained QP, see ``backward``)."""
+        bounds = np.concatenate([np.asarray(self.data.u_low), np.asarray(self.data.u_high)])
+        return bool(np.any(np.isfinite(bounds)))
+
+    @property
     def noisy(self) -> bool:
         """True when the system has any noise."""
         return not self.noise.is_zero
@@ -297,13 +331,28 @@ class Env:
     def __repr__(self) -> str:
         d = self.dims
         noise = "" if self.noise.is_zero else f", noise={self.noise}"
+        limits = "" if not self.limited else ", ctrl limited"
         return (
-            f"Env({self.name!r}, nq={d.nq}, nv={d.nv}, nu={d.nu}, nz={d.nz}, "
+            f"Env({self.name!r}, nq={d.nq}, nv={d.nv}, nu={d.nu}, nz={d.nz}{limits}, "
             f"horizon={d.horizon}, control_dt={self.control_dt:g}{noise})"
         )
 
 
 # --------------------------------------------------------------------- helpers
+def _check_sensors_run(mjx_model, name: str) -> None:
+    """Trace (without compiling) the ``mjx.forward`` that computes the sensors,
+    so that a sensor MJX does not implement fails here with its name."""
+    import jax
+
+    try:
+        jax.eval_shape(mjx.forward, mjx_model, mjx.make_data(mjx_model))
+    except Exception as exc:
+        raise ModelLoadError(
+            f"MJX cannot compute the sensors of {name!r}: {type(exc).__name__}: {exc}. Observe joints "
+            "(qpos/qvel) or another sensor type instead."
+        ) from None
+
+
 def _check_int(name: str, value: Any, minimum: int) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise TaskError(
@@ -353,7 +402,54 @@ def _index_of(m: mujoco.MjModel, kind: str, entry: Any) -> list[int]:
     raise TaskError(f"Observation entries must be indices or joint names; got {entry!r} in {kind}.")
 
 
-def _observation_matrix(m: mujoco.MjModel, observation: Any) -> tuple[np.ndarray, tuple[str, ...]]:
+_LINEAR_SENSORS = {mujoco.mjtSensor.mjSENS_JOINTPOS: "qpos", mujoco.mjtSensor.mjSENS_JOINTVEL: "qvel"}
+
+
+class Observation(NamedTuple):
+    """z = C x + D sensordata, with a label per row."""
+
+    C: np.ndarray  # [nz, nx]
+    D: np.ndarray  # [nz, nsensordata]
+    labels: tuple[str, ...]
+    sensors: bool  # some row reads sensordata
+
+
+def _sensor_rows(m: mujoco.MjModel, entry: Any) -> tuple[list[np.ndarray], list[np.ndarray], list[str]]:
+    """Rows (of C and of D) and labels of the named sensor ``entry``.
+
+    A ``jointpos``/``jointvel`` sensor of a hinge or slide joint without a
+    cutoff is a coordinate of the state, so it becomes a row of C (linear, and
+    usable by the model-based reference); any other sensor is read from
+    ``sensordata`` after ``mjx.forward``.
+    """
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SENSOR, i) for i in range(m.nsensor)]
+    if not isinstance(entry, str):
+        raise TaskError(f"Sensor observations are given by name; got {entry!r}. The model's sensors are {names}.")
+    i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, entry)
+    if i < 0:
+        raise TaskError(
+            f"Unknown sensor {entry!r} in the observation; the model's sensors are {names or 'none'}. "
+            "Add a named <sensor> to the MJCF file or fix the name."
+        )
+    stype = mujoco.mjtSensor(m.sensor_type[i])
+    if m.sensor_needstage[i] == mujoco.mjtStage.mjSTAGE_ACC:
+        raise TaskError(
+            f"Sensor {entry!r} ({stype.name[7:].lower()}) depends on accelerations, i.e. on the control "
+            "being applied, so it is not an observation of the state; use a position or velocity sensor."
+        )
+    nx = m.nq + m.nv
+    kind = _LINEAR_SENSORS.get(stype)
+    if kind is not None and m.sensor_objtype[i] == mujoco.mjtObj.mjOBJ_JOINT and m.sensor_cutoff[i] == 0:
+        j = m.sensor_objid[i]
+        if int(m.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+            col = m.jnt_qposadr[j] if kind == "qpos" else m.nq + m.jnt_dofadr[j]
+            return [np.eye(nx)[col]], [np.zeros(m.nsensordata)], [f"sensor:{entry}"]
+    dim, adr = int(m.sensor_dim[i]), int(m.sensor_adr[i])
+    labels = [f"sensor:{entry}" + (f"[{k}]" if dim > 1 else "") for k in range(dim)]
+    return [np.zeros(nx)] * dim, list(np.eye(m.nsensordata)[adr : adr + dim]), labels
+
+
+def _observation_matrix(m: mujoco.MjModel, observation: Any) -> Observation:
     nq, nv = m.nq, m.nv
     nx = nq + nv
     labels_all = _state_labels(m)
@@ -365,25 +461,47 @@ def _observation_matrix(m: mujoco.MjModel, observation: Any) -> tuple[np.ndarray
         else:
             raise TaskError(
                 f"Unknown observation {observation!r}; use 'full', 'qpos', a mapping "
-                "{'qpos': [...], 'qvel': [...]} or a matrix C of shape [nz, nq + nv]."
+                "{'qpos': [...], 'qvel': [...], 'sensors': [...]} or a matrix C of shape [nz, nq + nv]."
             )
         C = np.eye(nx)[rows]
-        return C, tuple(labels_all[r] for r in rows)
+        return Observation(C, np.zeros((len(rows), m.nsensordata)), tuple(labels_all[r] for r in rows), False)
     if isinstance(observation, Mapping):
-        unknown = set(observation) - {"qpos", "qvel"}
+        unknown = set(observation) - {"qpos", "qvel", "sensors"}
         if unknown:
-            raise TaskError(f"Observation mapping has unknown key(s) {sorted(unknown)}; use 'qpos' and/or 'qvel'.")
-        rows: list[int] = []
+            raise TaskError(
+                f"Observation mapping has unknown key(s) {sorted(unknown)}; use 'qpos', 'qvel' and/or 'sensors'."
+            )
+        c_rows: list[np.ndarray] = []
+        d_rows: list[np.ndarray] = []
+        labels: list[str] = []
         for kind, offset in (("qpos", 0), ("qvel", nq)):
-            for entry in observation.get(kind, []) or []:
-                rows += [offset + i for i in _index_of(m, kind, entry)]
-        if not rows:
-            raise TaskError("The observation selects nothing (size 0); list at least one qpos or qvel entry.")
-        if len(set(rows)) != len(rows):
-            raise TaskError(f"The observation selects some entry twice: {rows}; list each once.")
-        C = np.eye(nx)[rows]
-        return C, tuple(labels_all[r] for r in rows)
-    C = np.asarray(observation, dtype=float)
+            for entry in _entries(observation, kind):
+                for i in _index_of(m, kind, entry):
+                    c_rows.append(np.eye(nx)[offset + i])
+                    d_rows.append(np.zeros(m.nsensordata))
+                    labels.append(labels_all[offset + i])
+        for entry in _entries(observation, "sensors"):
+            c, d, lab = _sensor_rows(m, entry)
+            c_rows += c
+            d_rows += d
+            labels += lab
+        if not labels:
+            raise TaskError("The observation selects nothing (size 0); list at least one qpos, qvel or sensors entry.")
+        C = np.array(c_rows).reshape(len(labels), nx)
+        D = np.array(d_rows).reshape(len(labels), m.nsensordata)
+        rows = np.concatenate([C, D], axis=1)
+        if len(np.unique(rows, axis=0)) != len(rows):
+            raise TaskError(f"The observation selects some quantity twice: {labels}; list each once.")
+        sensors = bool(np.any(D))
+        if not sensors and np.linalg.matrix_rank(C) < C.shape[0]:
+            raise TaskError(f"The observation {labels} repeats a coordinate; list each once.")
+        return Observation(C, D, tuple(labels), sensors)
+    try:
+        C = np.asarray(observation, dtype=float)
+    except (TypeError, ValueError):
+        raise TaskError(
+            f"The observation must be 'full', 'qpos', a mapping or a matrix C [nz, nq + nv]; got {observation!r}."
+        ) from None
     if C.ndim != 2 or C.shape[1] != nx or C.shape[0] < 1:
         raise TaskError(
             f"The observation matrix C must have shape [nz, nq + nv] = [nz, {nx}] with nz >= 1; got shape {C.shape}."
@@ -395,7 +513,27 @@ def _observation_matrix(m: mujoco.MjModel, observation: Any) -> tuple[np.ndarray
             f"The observation matrix C ({C.shape[0]} rows) is rank deficient: some "
             "observation is a combination of the others. Remove redundant rows."
         )
-    return C, tuple(f"z[{i}]" for i in range(C.shape[0]))
+    return Observation(C, np.zeros((C.shape[0], m.nsensordata)), tuple(f"z[{i}]" for i in range(C.shape[0])), False)
+
+
+def _entries(observation: Mapping, kind: str) -> list:
+    entries = observation.get(kind) or []
+    if isinstance(entries, (str, int)):
+        entries = [entries]
+    if not isinstance(entries, (list, tuple)):
+        raise TaskError(f"Observation `{kind}` must be a list of names or indices; got {entries!r}.")
+    return list(entries)
+
+
+def control_limits(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """The ctrl box MuJoCo clamps to: ``ctrlrange`` where ``ctrllimited``
+    (and clamping is not disabled), else (-inf, inf)."""
+    low, high = np.full(m.nu, -np.inf), np.full(m.nu, np.inf)
+    if not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL:
+        limited = m.actuator_ctrllimited.astype(bool)
+        low[limited] = m.actuator_ctrlrange[limited, 0]
+        high[limited] = m.actuator_ctrlrange[limited, 1]
+    return low, high
 
 
 def _vector(name: str, value: Any, n: int, what: str) -> np.ndarray:

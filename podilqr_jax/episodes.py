@@ -3,13 +3,13 @@
 One episode of a :class:`~podilqr_jax.policy.FeedbackPolicy` from the start
 state x_0 = x0 + dx_0:
 
-  m_t     = M x_t + v_t                      measured (M = C, or I for a
-                                             full-state policy)
+  m_t     = z_t + v_t                        measured, z_t = C x_t (+ D s(x_t)),
+                                             or x_t + v_t for a full-state policy
   u_t     = u_bar_t + K_t xi_t               commanded (xi from the m's)
   x_{t+1} = f(x_t, u_t + a_t) + w_t          a_t actuator noise, w_t process noise
 
-Its cost is the task's cost of the *true* observations C x_t and the
-commanded controls, and its final error is max_i |C x_T - z*|_i. The noise
+Its cost is the task's cost of the *true* observations z_t and the
+commanded controls, and its final error is max_i |z_T - z*|_i. The noise
 levels (:class:`EpisodeNoise`) are traced, so a sweep over them compiles once.
 
 ``run_segment`` runs the first ``steps`` steps of one controller per episode
@@ -28,7 +28,7 @@ from mujoco import mjx
 from .cost import batch_costs
 from .env import EnvData, EnvDims
 from .policy import Controller, FeedbackPolicy, control, initial_estimate, next_estimate
-from .rollout import physics_step, state_of, with_state
+from .rollout import observe, physics_step, state_of, with_state
 
 
 class EpisodeNoise(NamedTuple):
@@ -76,15 +76,18 @@ def draw(key: jax.Array, levels: EpisodeNoise, episodes: int, steps: int) -> Epi
     )
 
 
-def measurement_matrix(policy: FeedbackPolicy, data: EnvData) -> jnp.ndarray:
-    return jnp.eye(data.x0.shape[0], dtype=data.C.dtype) if policy.measures == "state" else data.C
-
-
-def _episode(dims: EnvDims, data: EnvData, M, ctrl: Controller, limits, x_start, w, v, a):
-    """One episode (or segment) of len(w) steps from the true state x_start."""
+def _episode(dims: EnvDims, data: EnvData, full_state: bool, ctrl: Controller, limits, x_start, w, v, a):
+    """One episode (or segment) of len(w) steps from the true state x_start.
+    The policy measures x (``full_state``) or the task's observation z, plus v."""
     model = data.model
+
+    def measure(d, x):
+        z = observe(dims, data, d, x)  # the true observation, for the cost
+        return z, x if full_state else z
+
     d = with_state(dims, mjx.make_data(model), x_start)
-    xi = initial_estimate(ctrl, M @ x_start + v[0])
+    z0, m0 = measure(d, x_start)
+    xi = initial_estimate(ctrl, m0 + v[0])
 
     def step(carry, inp):
         d, xi = carry
@@ -93,13 +96,13 @@ def _episode(dims: EnvDims, data: EnvData, M, ctrl: Controller, limits, x_start,
         d = physics_step(dims, model, d, u + a_t)
         x = state_of(d) + w_t
         d = with_state(dims, d, x)
-        xi = next_estimate(ctrl, t, xi, u, M @ x + v_next)
-        return (d, xi), (u, x)
+        z, m = measure(d, x)
+        xi = next_estimate(ctrl, t, xi, u, m + v_next)
+        return (d, xi), (u, x, z)
 
     steps = w.shape[0]
-    _, (u, x) = jax.lax.scan(step, (d, xi), (jnp.arange(steps), w, v[1:], a))
-    x = jnp.concatenate([x_start[None], x])
-    return x @ data.C.T, u, x
+    _, (u, x, z) = jax.lax.scan(step, (d, xi), (jnp.arange(steps), w, v[1:], a))
+    return jnp.concatenate([z0[None], z]), u, jnp.concatenate([x_start[None], x])
 
 
 def _summarise(data: EnvData, z, u, x) -> Episodes:
@@ -114,8 +117,9 @@ def run_episodes(
 ) -> Episodes:
     """``episodes`` noisy episodes of ``policy`` over its whole horizon, one MJX batch."""
     noise = draw(key, levels, episodes, policy.horizon)
-    M = measurement_matrix(policy, data)
-    run = functools.partial(_episode, dims, data, M, policy.controller, (levels.u_low, levels.u_high))
+    run = functools.partial(
+        _episode, dims, data, policy.measures == "state", policy.controller, (levels.u_low, levels.u_high)
+    )
     z, u, x = jax.vmap(run)(data.x0 + noise.dx0, noise.w, noise.v, noise.a)
     return _summarise(data, z, u, x)
 
@@ -125,8 +129,7 @@ def run_segment(dims: EnvDims, data: EnvData, policy: FeedbackPolicy, limits, x_
     """One segment per episode: ``policy`` holds one controller per episode
     (leading axis E on every array), run from x_start [E, nx] for w.shape[1]
     steps. Returns (z, u, x) of the segment, true observations and states."""
-    M = measurement_matrix(policy, data)
-    run = functools.partial(_episode, dims, data, M)
+    run = functools.partial(_episode, dims, data, policy.measures == "state")
     return jax.vmap(run, in_axes=(0, None, 0, 0, 0, 0))(policy.controller, limits, x_start, w, v, a)
 
 

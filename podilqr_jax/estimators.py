@@ -86,9 +86,15 @@ def two_stage_least_squares(X: jnp.ndarray, Y: jnp.ndarray, W: jnp.ndarray, rcon
 
     Returns (Theta' [p, k], rank, the centred residual [n, k]).
     """
-    X = X - X.mean(0)
-    Y = Y - Y.mean(0)
-    W = W - W.mean(0)
+    # Rows that are all zero are rollouts left out of the fit (``fit_each_step``):
+    # centre over the others and keep them zero.
+    used = jnp.any(X != 0, axis=1) | jnp.any(Y != 0, axis=1) | jnp.any(W != 0, axis=1)
+    n_used = jnp.maximum(jnp.sum(used), 1)
+
+    def centre(a):
+        return jnp.where(used[:, None], a - jnp.sum(a, axis=0) / n_used, 0.0)
+
+    X, Y, W = centre(X), centre(Y), centre(W)
     U, s, _ = jnp.linalg.svd(W, full_matrices=False)
     keep = s > 1e-10 * s[0]
     Q = U * keep  # orthonormal basis of the instruments' span (dropped directions zeroed)

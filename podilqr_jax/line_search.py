@@ -42,6 +42,7 @@ class LineSearchResult(NamedTuple):
     Z: jnp.ndarray  # [T+1, nZ] chosen candidate's information states
     costs: jnp.ndarray  # [n_alphas] every candidate's cost
     expected: jnp.ndarray  # [n_alphas] predicted decrease (positive is good)
+    n_diverged: jnp.ndarray  # int: candidates with a non-finite rollout or cost (never accepted)
 
 
 @functools.partial(jax.jit, static_argnames=("dims", "q", "n_fwd", "noisy"))
@@ -76,4 +77,4 @@ def line_search(
     i = jnp.where(accepted, jnp.argmax(ok), alphas.shape[0] - 1)
     chosen = jax.tree_util.tree_map(lambda a: a[i], traj)
     Z = info_states(chosen.z, chosen.u, q)
-    return LineSearchResult(accepted, alphas[i], cost[i], chosen, Z, cost, expected)
+    return LineSearchResult(accepted, alphas[i], cost[i], chosen, Z, cost, expected, jnp.sum(~finite))

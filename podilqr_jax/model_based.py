@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 
 import jax
+import jax.numpy as jnp
 from mujoco import mjx
 
 from .env import EnvData, EnvDims
@@ -29,5 +30,10 @@ def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar) -> LinearModel:
     def f(x, u):
         return state_of(physics_step(dims, data.model, with_state(dims, d0, x), u))
 
-    A, B = jax.vmap(jax.jacfwd(f, argnums=(0, 1)))(x_bar[:-1], u_bar)
+    # A control on its ctrlrange bound is moved inside by 1e-9 of the range:
+    # MuJoCo's clamp has no derivative there, and B must be the interior one
+    # (the backward pass's box QP handles the bound).
+    span = jnp.where(jnp.isfinite(data.u_high - data.u_low), data.u_high - data.u_low, 0.0)
+    u_lin = jnp.clip(u_bar, data.u_low + 1e-9 * span, data.u_high - 1e-9 * span)
+    A, B = jax.vmap(jax.jacfwd(f, argnums=(0, 1)))(x_bar[:-1], u_lin)
     return LinearModel(A, B)

@@ -53,7 +53,13 @@ def plot_trajectory(result: Result, path: str | os.PathLike) -> str:
         axes[i].set_ylabel(labels[i], fontsize=8)
         axes[i].grid(True, alpha=0.3)
     for j in range(u.shape[1]):
-        axes[-1].step(t_u, u[:, j], where="post", label=f"u[{j}]")
+        (line,) = axes[-1].step(t_u, u[:, j], where="post", label=f"u[{j}]")
+        if result.control_limits:
+            for bound in result.control_limits[j]:
+                if np.isfinite(bound):
+                    axes[-1].axhline(bound, color=line.get_color(), ls="--", lw=0.8)
+    if u.shape[1] > 1 or result.control_limits:
+        axes[-1].legend(fontsize=7, title="dashed: ctrlrange" if result.control_limits else None, title_fontsize=7)
     axes[-1].set_ylabel("control", fontsize=8)
     axes[-1].set_xlabel("time [s]")
     axes[-1].grid(True, alpha=0.3)

@@ -21,6 +21,7 @@ class Status(str, enum.Enum):
     LINE_SEARCH_FAILED = "line_search_failed"
     NONFINITE = "nonfinite"
     NO_RESPONSE = "no_response"
+    INTERRUPTED = "interrupted"
 
     def __str__(self) -> str:
         return self.value
@@ -40,6 +41,7 @@ class IterationInfo:
     rollouts_per_s: float
     wall_s: float
     true_cost: float = float("nan")  # the policy's cost on the noiseless system
+    note: str = ""  # what happened out of the ordinary (a retry, left-out rollouts)
 
 
 @dataclasses.dataclass
@@ -94,6 +96,11 @@ class Result:
     rejected_steps: int = 0
     remeasured: int = 0
     longest_rejection_streak: int = 0
+    diverged_rollouts: int = 0  # sysid rollouts left out of the fit as non-finite
+    diverged_candidates: int = 0  # line-search candidates rejected as non-finite
+    mu_retries: int = 0  # backward passes redone with a larger mu after a rejected step
+    warnings: list[str] = dataclasses.field(default_factory=list)
+    control_limits: list = dataclasses.field(default_factory=list)  # [nu][low, high] ctrlrange; [] when unlimited
 
     @property
     def final_cost(self) -> float:
@@ -152,6 +159,11 @@ class Result:
             "rejected_steps": self.rejected_steps,
             "remeasured": self.remeasured,
             "longest_rejection_streak": self.longest_rejection_streak,
+            "diverged_rollouts": self.diverged_rollouts,
+            "diverged_candidates": self.diverged_candidates,
+            "mu_retries": self.mu_retries,
+            "warnings": list(self.warnings),
+            "control_limits": [[float(lo), float(hi)] for lo, hi in self.control_limits],
             "alpha_history": self.alpha_history,
             "mu_history": self.mu_history,
             "grad_norm_history": self.grad_norm_history,
@@ -195,6 +207,10 @@ class Result:
             kwargs["info_states"] = np.asarray(info_states(kwargs["observations"], kwargs["controls"], int(d["q"])))
         for name in ("cost_history", "true_cost_history", "open_loop_cost_history"):
             kwargs[name] = [math.nan if v is None else float(v) for v in d.get(name, [])]
+        kwargs["control_limits"] = [
+            [-math.inf if lo is None else float(lo), math.inf if hi is None else float(hi)]
+            for lo, hi in d.get("control_limits", [])
+        ]
         kwargs["status"] = Status(d["status"])
         kwargs["observation_labels"] = tuple(d.get("observation_labels", ()))
         kwargs["state_labels"] = tuple(d.get("state_labels", ()))

@@ -2,7 +2,10 @@
 
 One rollout applies, at every control step t,
 
-  u_t = u_bar_t + offset_t + K_t (Z_t - Z_bar_t) + du_t
+  u_t = clamp(u_bar_t + offset_t + K_t (Z_t - Z_bar_t) + du_t)
+
+clamped to the model's ctrlrange as MuJoCo clamps ``ctrl`` (``clamp``); the
+recorded u is the applied, clamped control, so the fit sees what acted.
 
 where Z_t is the information state built online from the rollout's own
 observations and applied controls (see ``info_state``). Sysid rollouts use
@@ -76,6 +79,27 @@ def physics_step(dims: EnvDims, model, d, u: jnp.ndarray):
     return jax.lax.fori_loop(0, dims.substeps, lambda _, dd: mjx.step(model, dd), d)
 
 
+def observe(dims: EnvDims, data: EnvData, d, x: jnp.ndarray) -> jnp.ndarray:
+    """z = C x (+ D sensordata, with the sensors recomputed at the state of ``d``)."""
+    z = data.C @ x
+    if dims.sensors:
+        z = z + data.D @ mjx.forward(data.model, d).sensordata
+    return z
+
+
+@functools.partial(jax.jit, static_argnames=("dims",))
+def observations_of(dims: EnvDims, data: EnvData, x: jnp.ndarray) -> jnp.ndarray:
+    """The noise-free observations of states x [N, nx] (sensors recomputed)."""
+    d0 = mjx.make_data(data.model)
+    return jax.vmap(lambda x_i: observe(dims, data, with_state(dims, d0, x_i), x_i))(x)
+
+
+def clamp(data: EnvData, u: jnp.ndarray) -> jnp.ndarray:
+    """``u`` clamped to the model's ctrlrange, as MuJoCo clamps ``ctrl`` (an
+    identity where the actuator is not limited: the bounds are -inf, inf)."""
+    return jnp.clip(u, data.u_low, data.u_high)
+
+
 def state_of(d) -> jnp.ndarray:
     return jnp.concatenate([d.qpos, d.qvel])
 
@@ -91,23 +115,23 @@ def _rollout_one(
     T = dims.horizon
     x0 = data.x0 if noise is None else data.x0 + noise.dx0
     d = with_state(dims, mjx.make_data(model), x0)
+    z0 = observe(dims, data, d, x0)
     if noise is None:
         w = v_next = jnp.zeros((T, 0), x0.dtype)  # nothing to add; keeps one scan body
-        z0 = data.C @ x0
     else:
         w, v_next = noise.w, noise.v[1:]
-        z0 = data.C @ x0 + noise.v[0]
+        z0 = z0 + noise.v[0]
     Z0 = initial_info_state(z0, dims.nu, q)
 
     def step(carry, inp):
         d, Z = carry
         u_bar_t, Z_bar_t, K_t, offset_t, du_t, w_t, v_t = inp
-        u = u_bar_t + offset_t + K_t @ (Z - Z_bar_t) + du_t
+        u = clamp(data, u_bar_t + offset_t + K_t @ (Z - Z_bar_t) + du_t)
         d = physics_step(dims, model, d, u)
         if noise is not None:
             d = with_state(dims, d, state_of(d) + w_t)
         x = state_of(d)
-        z = data.C @ x
+        z = observe(dims, data, d, x)
         if noise is not None:
             z = z + v_t
         Z = shift(Z, z, u, dims.nz, dims.nu, q)

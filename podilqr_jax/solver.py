@@ -21,26 +21,35 @@ deterministic, so re-identifying would give the same model).
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
-from typing import Callable, Optional
+from typing import Callable, NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .backward import BackwardResult, QuadraticCost, Regularisation, backward_pass
+from .backward import QuadraticCost, Regularisation, backward_pass
+from .checkpoint import Nominal, SolverState, fingerprint, load_checkpoint, save_checkpoint
 from .compile_watch import CompileWatch
 from .config import SolverConfig
 from .env import Env
 from .errors import ConfigError
 from .estimators import fit_information_model_iv
 from .evaluation import true_costs
-from .info_state import info_dim, observation_selector
+from .info_state import info_dim, n_regressors, observation_selector
 from .line_search import line_search
 from .model_based import linearise
 from .result import IterationInfo, Result, Status
-from .rollout import Policy, bytes_per_rollout, injected_perturbations, perturbation_rollouts, replicated
-from .sysid import LinearModel, fit_information_model
+from .rollout import (
+    Policy,
+    bytes_per_rollout,
+    injected_perturbations,
+    observations_of,
+    perturbation_rollouts,
+    replicated,
+)
+from .sysid import fit_information_model
 
 Callback = Callable[[IterationInfo], None]
 
@@ -54,12 +63,23 @@ def default_config(env: Env, **overrides) -> SolverConfig:
     return SolverConfig().replace(**settings)
 
 
+class RunOptions(NamedTuple):
+    """Checkpointing of a solve (validated by ``_run_options``)."""
+
+    checkpoint: Optional[str]  # folder written every ``every`` iterations
+    every: int
+    resume: Optional[str]  # checkpoint folder (or file) to continue from
+
+
 def solve(
     env: Env,
     cfg: Optional[SolverConfig] = None,
     *,
     u_init=None,
     callback: Optional[Callback] = None,
+    checkpoint: Optional[str | os.PathLike] = None,
+    checkpoint_every: int = 10,
+    resume: Optional[str | os.PathLike] = None,
 ) -> Result:
     """POD-iLQR: optimise the controls of ``env`` from rollouts alone.
 
@@ -68,12 +88,21 @@ def solve(
       cfg: solver settings; default :func:`default_config` of the task.
       u_init: initial nominal controls [T, nu]; default zeros.
       callback: called with an :class:`IterationInfo` after every iteration.
+      checkpoint: a folder; the solver state is saved there (atomically, as
+        ``checkpoint.npz``) every ``checkpoint_every`` iterations and when
+        the solve stops (see ``checkpoint``).
+      resume: a checkpoint folder to continue from: the same task and
+        settings (``max_iterations`` may be raised) give the same result, bit
+        for bit, as a run that was never stopped. ``u_init`` is then unused.
 
     Returns:
-      A :class:`Result`; its ``status`` says why the solve stopped.
+      A :class:`Result`; its ``status`` says why the solve stopped. Ctrl-C
+      (KeyboardInterrupt) during the iterations returns the result after the
+      last completed iteration with status ``interrupted``.
     """
     cfg = default_config(env) if cfg is None else cfg
     q = cfg.validate(env, data_based=True)
+    run = _run_options(checkpoint, checkpoint_every, resume)
     dims, data = env.dims, _on_device(env.data)
     nZ = info_dim(dims.nz, dims.nu, q)
     sigma = _on_device(cfg.sigma)
@@ -86,7 +115,7 @@ def solve(
 
     def identify(key, nominal, gains):
         t0 = time.perf_counter()
-        policy = nominal.policy(gains if feedback else no_gains)
+        policy = _policy(nominal, gains if feedback else no_gains)
         traj = perturbation_rollouts(dims, q, cfg.n_s, data, policy, key, sigma, n_avg=n_avg, noisy=noisy, chunk=chunk)
         traj.z.block_until_ready()
         t1 = time.perf_counter()
@@ -96,8 +125,16 @@ def solve(
         else:
             model, report = fit_information_model(traj.z, traj.u, nominal.z_bar, nominal.u_bar, q, rcond)
         stop = None
-        if not bool(report.all_finite):
-            stop = (Status.NONFINITE, "a sysid rollout or the fitted model is not finite")
+        n_bad = int(report.n_bad)
+        n_good = cfg.n_s - n_bad
+        if n_good < needed:
+            stop = (
+                Status.NONFINITE,
+                f"{n_bad} of {cfg.n_s} sysid rollouts diverged (non-finite states); the {n_good} left are "
+                f"too few for the fit ({needed} needed): lower sigma, or look at the model's stability",
+            )
+        elif not bool(jnp.all(jnp.isfinite(model.A)) & jnp.all(jnp.isfinite(model.B))):
+            stop = (Status.NONFINITE, "the fitted model is not finite")
         elif float(jnp.max(report.target_rms)) == 0.0:
             stop = (
                 Status.NO_RESPONSE,
@@ -105,9 +142,12 @@ def solve(
                 "so the fit sees no dynamics: raise sigma (or use float64, see docs/algorithm.md)",
             )
         t2 = time.perf_counter()
-        return model, stop, cfg.n_s * n_avg, {"rollouts": t1 - t0, "fit": t2 - t1}
+        return model, stop, cfg.n_s * n_avg, n_bad, {"rollouts": t1 - t0, "fit": t2 - t1}
 
-    return _iterate("pod-ilqr", env, dims, data, cfg, q, identify, u_init, callback, noisy, cfg.resolved_n_forward())
+    needed = n_regressors(dims.nz, dims.nu, q)
+    return _iterate(
+        "pod-ilqr", env, dims, data, cfg, q, identify, u_init, callback, noisy, cfg.resolved_n_forward(), run
+    )
 
 
 def solve_model_based(
@@ -116,6 +156,9 @@ def solve_model_based(
     *,
     u_init=None,
     callback: Optional[Callback] = None,
+    checkpoint: Optional[str | os.PathLike] = None,
+    checkpoint_every: int = 10,
+    resume: Optional[str | os.PathLike] = None,
 ) -> Result:
     """The model-based reference: iLQR with exact MJX Jacobians on the full state.
 
@@ -125,6 +168,7 @@ def solve_model_based(
     """
     cfg = default_config(env) if cfg is None else cfg
     cfg.validate(env, data_based=False)
+    run = _run_options(checkpoint, checkpoint_every, resume)
     view = env.full_state_view()
     dims, data = view.dims, _on_device(view.data)
 
@@ -133,37 +177,25 @@ def solve_model_based(
         model = linearise(dims, data, nominal.x_bar, nominal.u_bar)
         finite = bool(jnp.all(jnp.isfinite(model.A)) & jnp.all(jnp.isfinite(model.B)))
         stop = None if finite else (Status.NONFINITE, "the exact linearisation is not finite")
-        return model, stop, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}
+        return model, stop, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}
 
-    return _iterate("model-based", env, dims, data, cfg, 1, identify, u_init, callback, False, 1)
-
-
-@dataclasses.dataclass
-class _Nominal:
-    u_bar: jnp.ndarray
-    z_bar: jnp.ndarray
-    x_bar: jnp.ndarray
-    Z_bar: jnp.ndarray
-    cost: float
-
-    @classmethod
-    def measured(cls, ls) -> "_Nominal":
-        """The line search's chosen rollout as the new nominal."""
-        return cls(ls.trajectory.u, ls.trajectory.z, ls.trajectory.x, ls.Z, float(ls.cost))
-
-    def policy(self, K) -> Policy:
-        """u_t = u_bar_t + K_t (Z_t - Z_bar_t) about this nominal."""
-        return Policy(self.u_bar, self.Z_bar[:-1], K)
+    return _iterate("model-based", env, dims, data, cfg, 1, identify, u_init, callback, False, 1, run)
 
 
-def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy, n_fwd) -> Result:
+def _policy(nominal: Nominal, K) -> Policy:
+    """u_t = u_bar_t + K_t (Z_t - Z_bar_t) about ``nominal``."""
+    return Policy(nominal.u_bar, nominal.Z_bar[:-1], K)
+
+
+def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy, n_fwd, run) -> Result:
     """The outer loop; ``dims, data`` are the task as the solver sees it (its
-    data committed to the device), ``env`` the task as the user gave it."""
+    data committed to the device), ``env`` the task as the user gave it,
+    ``run`` the checkpoint/resume options."""
     t_start = time.perf_counter()
     nZ = info_dim(dims.nz, dims.nu, q)
-    u0 = _initial_controls(u_init, dims)
     selector = observation_selector(dims.nz, dims.nu, q)
-    cost_model = QuadraticCost(selector, data.z_target, data.Q, data.QT, data.R, data.goal_step)
+    box = (data.u_low, data.u_high) if env.limited else (None, None)
+    cost_model = QuadraticCost(selector, data.z_target, data.Q, data.QT, data.R, data.goal_step, *box)
     reg = Regularisation(_on_device(cfg.mu_min), _on_device(cfg.mu_max), _on_device(cfg.mu_factor))
     steps = 0.5 ** np.arange(cfg.n_alphas)
     # Under noise alpha = 0 is the last candidate: when nothing is accepted it
@@ -173,20 +205,19 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
     accept_ratio = _on_device(cfg.accept_ratio)
     zero_k = _on_device(np.zeros((dims.horizon, dims.nu)))
     no_change = _on_device(0.0)
-    gains = _on_device(np.zeros((dims.horizon, dims.nu, nZ)))  # K of the current policy
     phase_s = dict.fromkeys(PHASES, 0.0)
     compiles: list[int] = []
     total_watch = CompileWatch()
-    key = jax.random.PRNGKey(cfg.seed)
-    ls_key = jax.random.fold_in(key, 1)  # the forward passes' own noise stream
+    print_ = fingerprint(method, env, dims, cfg)
 
-    def measure(policy, k, cost0, dV1, dV2):
-        nonlocal ls_key
+    def measure(st, policy, k, cost0, dV1, dV2):
         t0 = time.perf_counter()
-        ls_key, sub = jax.random.split(ls_key)
-        cost0 = _on_device(cost0)
-        ls = line_search(dims, q, data, policy, k, alphas, cost0, dV1, dV2, accept_ratio, sub, n_fwd=n_fwd, noisy=noisy)
+        st.ls_key, sub = jax.random.split(st.ls_key)
+        ls = line_search(
+            dims, q, data, policy, k, alphas, _on_device(cost0), dV1, dV2, accept_ratio, sub, n_fwd=n_fwd, noisy=noisy
+        )
         accepted = bool(ls.accepted)
+        st.diverged_candidates += int(ls.n_diverged)
         phase_s["line_search"] += time.perf_counter() - t0
         return ls, accepted
 
@@ -195,143 +226,203 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
         if not noisy:
             return nominal.cost, nominal.cost
         t0 = time.perf_counter()
-        tc = true_costs(dims, q, data, nominal.policy(gains))
+        tc = true_costs(dims, q, data, _policy(nominal, st.gains))
         out = float(tc.closed_loop), float(tc.open_loop)
         phase_s["evaluation"] += time.perf_counter() - t0
         return out
 
-    with total_watch:
-        # The first nominal: the line search with k = 0, K = 0 rolls out u0 open loop.
-        with CompileWatch() as watch0:
-            first = Policy(u0, _on_device(np.zeros((dims.horizon, nZ))), gains)
-            ls, _ = measure(first, zero_k, np.inf, no_change, no_change)
-            nominal = _Nominal.measured(ls)
-            true_cost, open_cost = ground_truth(nominal)
-        cost_history = [nominal.cost]
-        true_history, open_history = [true_cost], [open_cost]
-        alpha_history: list[float] = []
-        mu_history: list[float] = []
-        grad_history: list[float] = []
-        rollouts = ls_rollouts
-        mu = max(cfg.mu_init, cfg.mu_min)
-        failures = rejected = remeasured = streak = longest_streak = 0
-        model: Optional[LinearModel] = None
-        back: Optional[BackwardResult] = None
-        status, message = Status.MAX_ITERATIONS, f"reached max_iterations={cfg.max_iterations}"
-        if noisy:
-            message += " (under noise a solve runs to max_iterations; see true_cost_history)"
-        iteration = 0
-        first_compiles = watch0.compiles
-
-        if not np.isfinite(nominal.cost):
-            status, message = Status.NONFINITE, "the initial controls give a non-finite rollout"
+    def one_iteration(st: SolverState):
+        """Identify (unless the model is reused), backward pass, line search.
+        Returns (stop or None, note for the progress line, accepted, rollouts)."""
+        stop, note, iter_rollouts, accepted = None, "", 0, False
+        nominal = st.nominal
+        if st.model is None:
+            st.key, sub = jax.random.split(st.key)
+            st.model, stop, iter_rollouts, n_bad, times = identify(sub, nominal, st.gains)
+            st.rollouts += iter_rollouts
+            for name, secs in times.items():
+                phase_s[name] += secs
+            if n_bad and stop is None:
+                st.diverged_rollouts += n_bad
+                note = f"{n_bad} sysid rollouts diverged, left out of the fit"
+        if stop is not None:
+            st.model = None
+            return stop, note, accepted, iter_rollouts
+        t0 = time.perf_counter()
+        back = backward_pass(st.model, nominal.Z_bar, nominal.u_bar, cost_model, _on_device(st.mu), reg)
+        back_ok = bool(back.ok)
+        st.mu = float(back.mu)
+        grad_norm = float(jnp.max(jnp.abs(back.grad)))
+        phase_s["backward"] += time.perf_counter() - t0
+        st.grad_history.append(grad_norm)
+        st.mu_history.append(st.mu)
+        if not back_ok and not noisy:
+            return (
+                (Status.LINE_SEARCH_FAILED, f"the backward pass needs regularisation above mu_max={cfg.mu_max:g}"),
+                note,
+                accepted,
+                iter_rollouts,
+            )
+        if back_ok:
+            st.back_k = back.k
+            if grad_norm < cfg.gtol:
+                st.gains = back.K
+                return (Status.CONVERGED, f"gradient norm {grad_norm:.3g} below gtol={cfg.gtol:g}"), note, False, 0
+            ls, accepted = measure(st, _policy(nominal, back.K), back.k, nominal.cost, back.dV1, back.dV2)
+        else:  # noisy and no usable model: re-measure the current policy
+            ls, accepted = measure(st, _policy(nominal, st.gains), zero_k, nominal.cost, no_change, no_change)
+        iter_rollouts += ls_rollouts
+        st.rollouts += ls_rollouts
+        if accepted:
+            new_cost = float(ls.cost)
+            st.alpha_history.append(float(ls.alpha))
+            decrease = nominal.cost - new_cost
+            st.nominal = Nominal.measured(ls)
+            st.gains = back.K
+            st.model = None
+            st.failures = st.streak = 0
+            st.mu = max(st.mu / cfg.mu_factor, cfg.mu_min)
+            if not noisy and decrease < cfg.rtol * abs(new_cost):
+                stop = (Status.CONVERGED, f"relative cost decrease below rtol={cfg.rtol:g}")
         else:
-            for iteration in range(1, cfg.max_iterations + 1):
-                t_iter = time.perf_counter()
-                with CompileWatch() as watch:
-                    stop, iter_rollouts, accepted = None, 0, False
-                    if model is None:
-                        key, sub = jax.random.split(key)
-                        model, stop, iter_rollouts, times = identify(sub, nominal, gains)
-                        for name, secs in times.items():
-                            phase_s[name] += secs
-                    if stop is None:
-                        t0 = time.perf_counter()
-                        back = backward_pass(model, nominal.Z_bar, nominal.u_bar, cost_model, _on_device(mu), reg)
-                        back_ok = bool(back.ok)
-                        mu = float(back.mu)
-                        grad_norm = float(jnp.max(jnp.abs(back.grad)))
-                        phase_s["backward"] += time.perf_counter() - t0
-                        grad_history.append(grad_norm)
-                        mu_history.append(mu)
-                        if not back_ok and not noisy:
-                            stop = (
-                                Status.LINE_SEARCH_FAILED,
-                                f"the backward pass needs regularisation above mu_max={cfg.mu_max:g}",
-                            )
-                        elif back_ok and grad_norm < cfg.gtol:
-                            stop = (Status.CONVERGED, f"gradient norm {grad_norm:.3g} below gtol={cfg.gtol:g}")
-                            gains = back.K
-                    if stop is None:
-                        if back_ok:
-                            ls, accepted = measure(nominal.policy(back.K), back.k, nominal.cost, back.dV1, back.dV2)
-                        else:  # noisy and no usable model: re-measure the current policy
-                            ls, accepted = measure(nominal.policy(gains), zero_k, nominal.cost, no_change, no_change)
-                        iter_rollouts += ls_rollouts
-                        if accepted:
-                            new_cost = float(ls.cost)
-                            alpha_history.append(float(ls.alpha))
-                            decrease = nominal.cost - new_cost
-                            nominal = _Nominal.measured(ls)
-                            gains = back.K
-                            model = None
-                            failures = streak = 0
-                            mu = max(mu / cfg.mu_factor, cfg.mu_min)
-                            if not noisy and decrease < cfg.rtol * abs(new_cost):
-                                stop = (Status.CONVERGED, f"relative cost decrease below rtol={cfg.rtol:g}")
-                        else:
-                            alpha_history.append(0.0)
-                            failures += 1
-                            rejected += 1
-                            streak += 1
-                            longest_streak = max(longest_streak, streak)
-                            mu = max(mu * cfg.mu_factor**failures, cfg.mu_min)
-                            if noisy:
-                                # The nominal's cost may be a lucky draw that no
-                                # step can beat: take the fresh measurement of the
-                                # same policy (the alpha = 0 candidate) and
-                                # identify again about it, with mu capped.
-                                mu = min(mu, cfg.mu_cap)
-                                nominal = _Nominal.measured(ls)
-                                model = None
-                                remeasured += 1
-                                if not np.isfinite(nominal.cost):
-                                    stop = (Status.NONFINITE, "a re-measured nominal rollout is not finite")
-                            else:
-                                # indexed on the host: an eager jnp index would compile a kernel
-                                predicted = float(np.asarray(ls.expected)[0])
-                                if abs(predicted) < cfg.rtol * abs(nominal.cost):
-                                    stop = (
-                                        Status.CONVERGED,
-                                        f"no step lowers the cost and the predicted decrease {predicted:.3g} "
-                                        f"is below rtol x cost",
-                                    )
-                                elif mu > cfg.mu_max:
-                                    stop = (
-                                        Status.LINE_SEARCH_FAILED,
-                                        f"no step size lowered the cost; regularisation passed mu_max={cfg.mu_max:g}",
-                                    )
-                        cost_history.append(nominal.cost)
-                        true_cost, open_cost = ground_truth(nominal)
-                        true_history.append(true_cost)
-                        open_history.append(open_cost)
-                    rollouts += iter_rollouts
-                compiles.append(watch.compiles + (first_compiles if iteration == 1 else 0))
-                if callback is not None:
-                    wall = time.perf_counter() - t_iter
-                    callback(
-                        IterationInfo(
-                            iteration=iteration,
-                            cost=nominal.cost,
-                            alpha=alpha_history[-1] if alpha_history else 0.0,
-                            mu=mu,
-                            grad_norm=grad_history[-1] if grad_history else float("nan"),
-                            accepted=accepted,
-                            rollouts=iter_rollouts,
-                            rollouts_per_s=iter_rollouts / wall if wall > 0 else float("nan"),
-                            wall_s=wall,
-                            true_cost=true_history[-1],
-                        )
+            st.alpha_history.append(0.0)
+            st.failures += 1
+            st.rejected += 1
+            st.streak += 1
+            st.longest_streak = max(st.longest_streak, st.streak)
+            st.mu = max(st.mu * cfg.mu_factor**st.failures, cfg.mu_min)
+            if noisy:
+                # The nominal's cost may be a lucky draw that no step can beat:
+                # take the fresh measurement of the same policy (the alpha = 0
+                # candidate) and identify again about it, with mu capped. A
+                # divergent measurement is not taken: the nominal stays.
+                st.mu = min(st.mu, cfg.mu_cap)
+                st.model = None
+                if np.isfinite(float(ls.cost)):
+                    st.nominal = Nominal.measured(ls)
+                    st.remeasured += 1  # routine under noise: no progress note
+                else:
+                    note = "no step accepted; the re-measurement diverged, nominal kept"
+            else:
+                # indexed on the host: an eager jnp index would compile a kernel
+                predicted = float(np.asarray(ls.expected)[0])
+                if abs(predicted) < cfg.rtol * abs(nominal.cost):
+                    stop = (
+                        Status.CONVERGED,
+                        f"no step lowers the cost and the predicted decrease {predicted:.3g} is below rtol x cost",
                     )
-                if stop is not None:
-                    status, message = stop
-                    break
+                elif st.mu > cfg.mu_max:
+                    stop = (
+                        Status.LINE_SEARCH_FAILED,
+                        f"no step size lowered the cost after {st.streak} retries with growing "
+                        f"regularisation; mu passed mu_max={cfg.mu_max:g}",
+                    )
+                else:
+                    st.mu_retries += 1
+                    note = f"no step lowered the cost: mu raised to {st.mu:.3g}, retrying"
+        st.cost_history.append(st.nominal.cost)
+        true_cost, open_cost = ground_truth(st.nominal)
+        st.true_history.append(true_cost)
+        st.open_history.append(open_cost)
+        return stop, note, accepted, iter_rollouts
+
+    status, message = Status.MAX_ITERATIONS, f"reached max_iterations={cfg.max_iterations}"
+    if noisy:
+        message += " (under noise a solve runs to max_iterations; see true_cost_history)"
+    first_compiles = 0
+    with total_watch:
+        if run.resume is not None:
+            st = load_checkpoint(run.resume, print_, _on_device)
+        else:
+            # The first nominal: the line search with k = 0, K = 0 rolls out u0 open loop.
+            key = jax.random.PRNGKey(cfg.seed)
+            st = SolverState(
+                iteration=0,
+                nominal=None,
+                gains=_on_device(np.zeros((dims.horizon, dims.nu, nZ))),
+                model=None,
+                back_k=None,
+                key=key,
+                ls_key=jax.random.fold_in(key, 1),  # the forward passes' own noise stream
+                mu=max(cfg.mu_init, cfg.mu_min),
+            )
+            with CompileWatch() as watch0:
+                first = Policy(_initial_controls(u_init, dims), _on_device(np.zeros((dims.horizon, nZ))), st.gains)
+                ls, _ = measure(st, first, zero_k, np.inf, no_change, no_change)
+                st.nominal = Nominal.measured(ls)
+                true_cost, open_cost = ground_truth(st.nominal)
+            st.diverged_candidates = 0  # the first measurement is not a candidate step
+            st.cost_history, st.true_history, st.open_history = [st.nominal.cost], [true_cost], [open_cost]
+            st.rollouts = ls_rollouts
+            first_compiles = watch0.compiles
+        safe = st.snapshot()
+        if not np.isfinite(st.nominal.cost):
+            status, message = Status.NONFINITE, "the initial controls give a non-finite rollout"
+        elif st.stopped is not None:  # resumed from the checkpoint of a finished solve: nothing to do
+            status, message = Status(st.stopped[0]), st.stopped[1] + " (before the checkpoint)"
+        else:
+            try:
+                for iteration in range(st.iteration + 1, cfg.max_iterations + 1):
+                    t_iter = time.perf_counter()
+                    with CompileWatch() as watch:
+                        stop, note, accepted, iter_rollouts = one_iteration(st)
+                        st.iteration = iteration
+                    compiles.append(watch.compiles + (first_compiles if not compiles else 0))
+                    safe = st.snapshot()
+                    if stop is not None:
+                        st.stopped = [str(stop[0]), stop[1]]
+                    final = stop is not None or iteration == cfg.max_iterations
+                    if run.checkpoint is not None and (iteration % run.every == 0 or final):
+                        save_checkpoint(run.checkpoint, st, print_)
+                    if callback is not None:
+                        callback(_info(st, iteration, accepted, iter_rollouts, time.perf_counter() - t_iter, note))
+                    if stop is not None:
+                        status, message = stop
+                        break
+            except KeyboardInterrupt:
+                st = safe
+                if run.checkpoint is not None:  # the last completed iteration: resumable as is
+                    save_checkpoint(run.checkpoint, st, print_)
+                status = Status.INTERRUPTED
+                message = "Ctrl-C; the result is the nominal and gains of the last completed iteration"
 
     wall = time.perf_counter() - t_start
     # Everything outside the jitted stages. Stage times include their own
     # compilation in the first iteration; compile_s reports it separately.
     phase_s["host"] = max(0.0, wall - sum(v for k, v in phase_s.items() if k != "host"))
-    k = np.asarray(back.k) if back is not None else np.zeros((dims.horizon, dims.nu))
+    return _result(method, env, dims, cfg, q, st, status, message, noisy, phase_s, compiles, total_watch, wall)
+
+
+def _info(st: SolverState, iteration: int, accepted: bool, rollouts: int, wall: float, note: str) -> IterationInfo:
+    return IterationInfo(
+        iteration=iteration,
+        cost=st.nominal.cost,
+        alpha=st.alpha_history[-1] if st.alpha_history else 0.0,
+        mu=st.mu,
+        grad_norm=st.grad_history[-1] if st.grad_history else float("nan"),
+        accepted=accepted,
+        rollouts=rollouts,
+        rollouts_per_s=rollouts / wall if wall > 0 else float("nan"),
+        wall_s=wall,
+        true_cost=st.true_history[-1],
+        note=note,
+    )
+
+
+def _result(method, env, dims, cfg, q, st: SolverState, status, message, noisy, phase_s, compiles, watch, wall):
+    warnings = []
+    if st.diverged_rollouts:
+        warnings.append(f"{st.diverged_rollouts} sysid rollouts diverged (non-finite) and were left out of the fit")
+    if st.diverged_candidates:
+        warnings.append(f"{st.diverged_candidates} line-search candidates diverged and were rejected")
+    if warnings:  # divergences belong in the message; retries are routine
+        message += "; " + "; ".join(warnings)
+    if st.mu_retries:
+        warnings.append(
+            f"{st.mu_retries} times no step lowered the cost and the backward pass was redone with a larger mu"
+        )
+    nominal = st.nominal
+    k = np.asarray(st.back_k) if st.back_k is not None else np.zeros((dims.horizon, dims.nu))
     x_bar = np.asarray(nominal.x_bar)
     return Result(
         method=method,
@@ -339,21 +430,23 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
         status=status,
         message=message,
         controls=np.asarray(nominal.u_bar),
-        observations=x_bar @ np.asarray(env.data.C).T,
+        observations=np.asarray(observations_of(env.dims, env.data, x_bar))
+        if env.dims.sensors
+        else x_bar @ np.asarray(env.data.C).T,
         states=x_bar,
         info_states=np.asarray(nominal.Z_bar),
-        K=np.asarray(gains),
+        K=np.asarray(st.gains),
         k=k,
         q=q,
-        cost_history=cost_history,
-        alpha_history=alpha_history,
-        mu_history=mu_history,
-        grad_norm_history=grad_history,
-        iterations=iteration,
-        rollouts=rollouts,
+        cost_history=st.cost_history,
+        alpha_history=st.alpha_history,
+        mu_history=st.mu_history,
+        grad_norm_history=st.grad_history,
+        iterations=st.iteration,
+        rollouts=st.rollouts,
         wall_s=wall,
-        compile_s=total_watch.seconds,
-        run_s=max(0.0, wall - total_watch.seconds),
+        compile_s=watch.seconds,
+        run_s=max(0.0, wall - watch.seconds),
         compiles_per_iteration=compiles,
         phase_s=phase_s,
         config=dataclasses.asdict(cfg) | {"q": q},
@@ -363,12 +456,33 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
         variant=cfg.variant if method == "pod-ilqr" else "model-based",
         noisy=noisy,
         noise=env.noise.as_dict() if noisy else {},
-        true_cost_history=true_history,
-        open_loop_cost_history=open_history,
-        rejected_steps=rejected,
-        remeasured=remeasured,
-        longest_rejection_streak=longest_streak,
+        true_cost_history=st.true_history,
+        open_loop_cost_history=st.open_history,
+        rejected_steps=st.rejected,
+        remeasured=st.remeasured,
+        longest_rejection_streak=st.longest_streak,
+        diverged_rollouts=st.diverged_rollouts,
+        diverged_candidates=st.diverged_candidates,
+        mu_retries=st.mu_retries,
+        warnings=warnings,
+        control_limits=np.stack([env.data.u_low, env.data.u_high], axis=1).tolist() if env.limited else [],
     )
+
+
+def _run_options(checkpoint, every, resume) -> RunOptions:
+    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+        raise ConfigError(f"`checkpoint_every` (--every) must be an integer >= 1; got {every!r}.")
+    if checkpoint is not None:
+        checkpoint = os.fspath(checkpoint)
+        try:
+            os.makedirs(checkpoint, exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(
+                f"Cannot create the checkpoint folder {checkpoint!r}: {exc.strerror}. Choose another folder."
+            ) from None
+        if not os.access(checkpoint, os.W_OK):
+            raise ConfigError(f"The checkpoint folder {checkpoint!r} is not writable. Choose another folder.")
+    return RunOptions(checkpoint, int(every), None if resume is None else os.fspath(resume))
 
 
 def _on_device(x):

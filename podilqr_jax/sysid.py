@@ -46,6 +46,7 @@ class FitReport(NamedTuple):
     target_rms: jnp.ndarray  # [T] RMS of dz_{t+1} itself
     rank: jnp.ndarray  # [T] numerical rank kept
     all_finite: jnp.ndarray  # scalar bool: every rollout finite
+    n_bad: jnp.ndarray  # scalar int: rollouts with a non-finite number, left out of the fit
 
 
 def least_squares(X: jnp.ndarray, Y: jnp.ndarray, rcond: jnp.ndarray):
@@ -74,15 +75,27 @@ def regression_data(z, u, z_bar, u_bar, q: int):
     return X, Y
 
 
+def finite_rollouts(z, u) -> jnp.ndarray:
+    """[n] True for the rollouts whose observations and controls are all finite."""
+    return jnp.all(jnp.isfinite(z), axis=(1, 2)) & jnp.all(jnp.isfinite(u), axis=(1, 2))
+
+
 def fit_each_step(z, u, inputs, q: int, solve) -> tuple[LinearModel, FitReport]:
     """The per-step fit as a ``lax.scan`` over time, shared by every estimator.
 
     ``inputs`` are time-major arrays whose first two are the regressors X and
     targets Y of ``regression_data``; ``solve(X_t, Y_t, ...)`` returns
     (W [nZ + nu, nz], rank, residual [n_s, nz]).
+
+    A rollout with any non-finite number (a divergent one) is left out: its
+    rows of every input are zero, which removes them from the least squares,
+    and ``FitReport.n_bad`` counts them (the driver reports them and stops
+    when too few are left).
     """
     nz, nu = z.shape[-1], u.shape[-1]
-    all_finite = jnp.all(jnp.isfinite(z)) & jnp.all(jnp.isfinite(u))
+    good = finite_rollouts(z, u)
+    all_finite = jnp.all(good)
+    inputs = tuple(jnp.where(good[None, :, None], a, 0.0) for a in inputs)
 
     def step(_, xs):
         W, rank, res = solve(*xs)
@@ -90,7 +103,7 @@ def fit_each_step(z, u, inputs, q: int, solve) -> tuple[LinearModel, FitReport]:
         return None, (A_t, B_t, jnp.sqrt(jnp.mean(res**2)), jnp.sqrt(jnp.mean(xs[1] ** 2)), rank)
 
     _, (A, B, res, tgt, rank) = jax.lax.scan(step, None, inputs)
-    return LinearModel(A, B), FitReport(res, tgt, rank, all_finite)
+    return LinearModel(A, B), FitReport(res, tgt, rank, all_finite, jnp.sum(~good))
 
 
 @functools.partial(jax.jit, static_argnames=("q",))

@@ -39,6 +39,25 @@ def test_solve_task_file_with_compare(tmp_path):
     assert not (tmp_path / "r_cost.png").exists()
 
 
+def test_task_file_on_a_model_that_is_not_bundled(tmp_path, capsys):
+    """examples/tasks/reacher.toml: two limited motors, a fingertip sensor; from
+    the CLI alone. --compare is refused before any solve (sensor observation)."""
+    reacher = os.path.join(REPO, "examples", "tasks", "reacher.toml")
+    assert main(["solve", reacher, "--compare", "--out", str(tmp_path / "c.json")]) == 2
+    assert "model-based reference needs a cost on the state" in capsys.readouterr().err.replace("\n", " ")
+    out = tmp_path / "r.json"
+    assert main(["solve", reacher, "--set", "max_iterations=4", "--out", str(out), "--no-plots", "--quiet"]) == 0
+    d = json.loads(out.read_text())
+    assert d["observation_labels"][:3] == [
+        "sensor:fingertip_pos[0]",
+        "sensor:fingertip_pos[1]",
+        "sensor:fingertip_pos[2]",
+    ]
+    assert d["control_limits"] == [[-0.5, 0.5], [-0.5, 0.5]]
+    assert max(abs(u) for row in d["controls"] for u in row) <= 0.5
+    assert d["cost_history"][-1] < d["cost_history"][0]
+
+
 @pytest.mark.parametrize(
     "argv, pattern",
     [

@@ -1,0 +1,113 @@
+"""Never lose a run: checkpoints, resume, Ctrl-C, and same seed same result."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import podilqr_jax as pj
+
+ARRAYS = ("controls", "states", "K", "k")
+HISTORIES = ("cost_history", "true_cost_history", "alpha_history", "mu_history", "grad_norm_history")
+
+
+def _assert_same(a: pj.Result, b: pj.Result) -> None:
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    for name in HISTORIES:
+        assert getattr(a, name) == getattr(b, name), name
+    assert (a.iterations, a.rollouts, a.rejected_steps, a.remeasured) == (
+        b.iterations,
+        b.rollouts,
+        b.rejected_steps,
+        b.remeasured,
+    )
+
+
+@pytest.fixture(scope="module")
+def noisy_task():
+    return pj.make_task("pendulum-full", horizon=10, noise="paper")
+
+
+def test_resume_gives_the_uninterrupted_result(noisy_task, tmp_path):
+    """Under noise (both PRNG streams, re-measured nominals and mu in play):
+    4 iterations with checkpoints every 2, then resumed to 7, equal 7 straight."""
+    cfg = pj.default_config(noisy_task, n_s=12, max_iterations=7, seed=3)
+    straight = pj.solve(noisy_task, cfg)
+    first = pj.solve(noisy_task, cfg.replace(max_iterations=4), checkpoint=tmp_path, checkpoint_every=2)
+    assert first.iterations == 4
+    assert sorted(os.listdir(tmp_path)) == ["checkpoint.npz"]  # no temporary files left
+    resumed = pj.solve(noisy_task, cfg, resume=tmp_path)
+    _assert_same(straight, resumed)
+
+
+def test_resume_of_a_noiseless_solve_that_reuses_its_model(tmp_path):
+    """Noiseless, a rejected step keeps the identified model for the retry;
+    checkpointing after every iteration must carry it."""
+    env = pj.make_task("cartpole-full", horizon=12)
+    cfg = pj.default_config(env, n_s=12, max_iterations=30)
+    straight = pj.solve(env, cfg)
+    assert straight.rejected_steps > 0, "the check needs a run with a rejected step"
+    stop_at = straight.alpha_history.index(0.0) + 1  # just after the first rejection
+    pj.solve(env, cfg.replace(max_iterations=stop_at), checkpoint=tmp_path, checkpoint_every=1)
+    _assert_same(straight, pj.solve(env, cfg, resume=tmp_path))
+    # A finished solve's checkpoint resumes to the same result, with nothing to do.
+    done = pj.solve(env, cfg, checkpoint=tmp_path / "done", checkpoint_every=1000)
+    again = pj.solve(env, cfg, resume=tmp_path / "done")
+    assert again.status == done.status and again.message.startswith(done.message.split(";")[0])
+    _assert_same(done, again)
+
+
+def test_resume_refuses_another_task_or_settings(noisy_task, tmp_path):
+    cfg = pj.default_config(noisy_task, n_s=12, max_iterations=2)
+    pj.solve(noisy_task, cfg, checkpoint=tmp_path, checkpoint_every=1)
+    with pytest.raises(pj.ConfigError, match=r"sigma: 0.01 -> 0.02"):
+        pj.solve(noisy_task, cfg.replace(sigma=0.02), resume=tmp_path)
+    with pytest.raises(pj.ConfigError, match="another solve: .*task"):
+        pj.solve(noisy_task.replace(R=3.0, name="other"), cfg, resume=tmp_path)
+    with pytest.raises(pj.ConfigError, match="No checkpoint"):
+        pj.solve(noisy_task, cfg, resume=tmp_path / "missing")
+    (tmp_path / "checkpoint.npz").write_bytes(b"not a checkpoint")
+    with pytest.raises(pj.ConfigError, match="cannot be read"):
+        pj.solve(noisy_task, cfg, resume=tmp_path)
+    with pytest.raises(pj.ConfigError, match="checkpoint_every"):
+        pj.solve(noisy_task, cfg, checkpoint=tmp_path, checkpoint_every=0)
+
+
+def test_same_seed_same_result_bit_for_bit(tmp_path):
+    """Two solves with the same seed agree exactly (noiseless sysid draws
+    its perturbations from the seed too); another seed differs."""
+    env = pj.make_task("cartpole-partial", horizon=10, noise="paper")
+    cfg = pj.default_config(env, n_s=16, max_iterations=4, seed=11)
+    a, b = pj.solve(env, cfg), pj.solve(env, cfg)
+    _assert_same(a, b)
+    c = pj.solve(env, cfg.replace(seed=12))
+    assert not np.array_equal(a.controls, c.controls)
+
+
+def test_ctrl_c_writes_the_result_and_exits_cleanly(tmp_path):
+    """SIGINT during `podilqr solve`: exit 130, no traceback, a complete result
+    file with status `interrupted`, and a checkpoint that resumes."""
+    out, ckpt = tmp_path / "result.json", tmp_path / "ckpt"
+    cmd = [sys.executable, "-m", "podilqr_jax.cli", "solve", "pendulum-full", "--noise", "paper"]
+    cmd += ["--set", "max_iterations=100000", "--set", "horizon=10", "--out", str(out), "--no-plots"]
+    cmd += ["--checkpoint", str(ckpt), "--every", "1", "--quiet"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 240
+    while not (ckpt / "checkpoint.npz").exists():
+        assert proc.poll() is None and time.time() < deadline, proc.stderr.read() if proc.poll() else "timeout"
+        time.sleep(0.2)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "interrupted" in err
+    d = json.loads(out.read_text())
+    assert d["status"] == "interrupted" and d["iterations"] >= 1
+    assert np.all(np.isfinite(d["controls"])) and np.all(np.isfinite(d["K"]))
+    assert len(d["cost_history"]) == d["iterations"] + 1
