@@ -97,11 +97,18 @@ class SolverState:
     _HISTORIES = ("cost_history", "true_history", "open_history", "alpha_history", "mu_history", "grad_history")
 
     def snapshot(self) -> "SolverState":
-        """A copy of the state at an iteration boundary (arrays shared: they are immutable)."""
+        """A shallow copy of the state at an iteration boundary, in O(1): arrays
+        are immutable and the histories only grow, so their lengths are kept
+        and ``restored`` cuts the shared lists back to them."""
         copy = dataclasses.replace(self)
-        for name in self._HISTORIES:
-            setattr(copy, name, list(getattr(self, name)))
+        copy._lengths = {name: len(getattr(self, name)) for name in self._HISTORIES}
         return copy
+
+    def restored(self) -> "SolverState":
+        """This snapshot, its histories cut back to their length when it was taken."""
+        for name, n in self._lengths.items():
+            del getattr(self, name)[n:]
+        return self
 
 
 def fingerprint(method: str, env, dims, cfg) -> dict[str, Any]:

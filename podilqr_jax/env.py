@@ -23,6 +23,7 @@ import dataclasses
 import os
 from typing import Any, Mapping, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -342,8 +343,6 @@ class Env:
 def _check_sensors_run(mjx_model, name: str) -> None:
     """Trace (without compiling) the ``mjx.forward`` that computes the sensors,
     so that a sensor MJX does not implement fails here with its name."""
-    import jax
-
     try:
         jax.eval_shape(mjx.forward, mjx_model, mjx.make_data(mjx_model))
     except Exception as exc:

@@ -110,14 +110,11 @@ def _finite(v: Any) -> bool:
 
 
 def actuator_limits(env: Env, u_max: np.ndarray, u_limit: float) -> tuple[np.ndarray, np.ndarray]:
-    """The model's ctrlrange where it limits a control, else +- u_limit u_max."""
-    m = env.mj_model
+    """The model's ctrlrange where it limits a control (the box MuJoCo and the
+    solver clamp to, ``env.data.u_low/u_high``), else +- u_limit u_max."""
     bound = np.where(u_max > 0, u_limit * u_max, np.inf)
-    low, high = -bound, bound.copy()
-    limited = np.asarray(m.actuator_ctrllimited, dtype=bool)
-    low = np.where(limited, m.actuator_ctrlrange[:, 0], low)
-    high = np.where(limited, m.actuator_ctrlrange[:, 1], high)
-    return low, high
+    low, high = np.asarray(env.data.u_low), np.asarray(env.data.u_high)
+    return np.where(np.isfinite(low), low, -bound), np.where(np.isfinite(high), high, bound)
 
 
 def _levels(env: Env, settings, eps, u_max, channel_range, limits) -> EpisodeNoise:

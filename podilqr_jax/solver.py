@@ -221,12 +221,12 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
         phase_s["line_search"] += time.perf_counter() - t0
         return ls, accepted
 
-    def ground_truth(nominal):
+    def ground_truth(st: SolverState):
         """True (closed-loop, noiseless) and open-loop replay cost of the current policy."""
         if not noisy:
-            return nominal.cost, nominal.cost
+            return st.nominal.cost, st.nominal.cost
         t0 = time.perf_counter()
-        tc = true_costs(dims, q, data, _policy(nominal, st.gains))
+        tc = true_costs(dims, q, data, _policy(st.nominal, st.gains))
         out = float(tc.closed_loop), float(tc.open_loop)
         phase_s["evaluation"] += time.perf_counter() - t0
         return out
@@ -267,7 +267,12 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
             st.back_k = back.k
             if grad_norm < cfg.gtol:
                 st.gains = back.K
-                return (Status.CONVERGED, f"gradient norm {grad_norm:.3g} below gtol={cfg.gtol:g}"), note, False, 0
+                return (
+                    (Status.CONVERGED, f"gradient norm {grad_norm:.3g} below gtol={cfg.gtol:g}"),
+                    note,
+                    False,
+                    iter_rollouts,
+                )
             ls, accepted = measure(st, _policy(nominal, back.K), back.k, nominal.cost, back.dV1, back.dV2)
         else:  # noisy and no usable model: re-measure the current policy
             ls, accepted = measure(st, _policy(nominal, st.gains), zero_k, nominal.cost, no_change, no_change)
@@ -321,7 +326,7 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                     st.mu_retries += 1
                     note = f"no step lowered the cost: mu raised to {st.mu:.3g}, retrying"
         st.cost_history.append(st.nominal.cost)
-        true_cost, open_cost = ground_truth(st.nominal)
+        true_cost, open_cost = ground_truth(st)
         st.true_history.append(true_cost)
         st.open_history.append(open_cost)
         return stop, note, accepted, iter_rollouts
@@ -350,7 +355,7 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                 first = Policy(_initial_controls(u_init, dims), _on_device(np.zeros((dims.horizon, nZ))), st.gains)
                 ls, _ = measure(st, first, zero_k, np.inf, no_change, no_change)
                 st.nominal = Nominal.measured(ls)
-                true_cost, open_cost = ground_truth(st.nominal)
+                true_cost, open_cost = ground_truth(st)
             st.diverged_candidates = 0  # the first measurement is not a candidate step
             st.cost_history, st.true_history, st.open_history = [st.nominal.cost], [true_cost], [open_cost]
             st.rollouts = ls_rollouts
@@ -380,7 +385,7 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                         status, message = stop
                         break
             except KeyboardInterrupt:
-                st = safe
+                st = safe.restored()
                 if run.checkpoint is not None:  # the last completed iteration: resumable as is
                     save_checkpoint(run.checkpoint, st, print_)
                 status = Status.INTERRUPTED

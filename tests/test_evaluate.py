@@ -164,3 +164,14 @@ def test_cli_evaluate_refuses_a_missing_or_foreign_file(tmp_path, capsys):
     other.write_text(json.dumps({"rows": []}))
     assert main(["evaluate", str(other)]) == 2
     assert "is not a podilqr result" in " ".join(capsys.readouterr().err.split())
+
+
+def test_actuator_limits_are_the_models_ctrlrange_else_a_multiple_of_the_largest_control():
+    from podilqr_jax.evaluate import actuator_limits
+
+    low, high = actuator_limits(pj.make_task("doublependulum-full"), np.array([8.0, 2.0]), 2.0)
+    np.testing.assert_array_equal(low, [-7.0, -1.8])
+    np.testing.assert_array_equal(high, [7.0, 1.8])
+    low, high = actuator_limits(pj.make_task("pendulum-full"), np.array([3.0]), 2.0)
+    np.testing.assert_array_equal(low, [-6.0])
+    np.testing.assert_array_equal(high, [6.0])
