@@ -90,6 +90,18 @@ class StudySettings:
             sweep_seeds=1,
         )
 
+    @classmethod
+    def tiny(cls) -> "StudySettings":
+        """A smoke run of every panel and the sweep (seconds per system, numbers meaningless):
+        1 seed, 2 iterations, horizon 8, a 2-point sweep."""
+        return cls(
+            seeds=1,
+            max_iterations={"pendulum": 2, "cartpole": 2},
+            sweep_factors=(1.0, 3.0),
+            sweep_seeds=1,
+            horizon=8,
+        )
+
 
 def run_study(
     out: str | os.PathLike,

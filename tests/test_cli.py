@@ -120,3 +120,53 @@ def test_console_script_exit_code_and_no_traceback(tmp_path):
     assert proc.returncode == 2
     assert "unrecognized arguments: --bogus-option" in proc.stderr
     assert "Traceback" not in proc.stderr and proc.stdout == ""
+
+
+def test_tasks_lists_the_bundled_tasks(capsys):
+    import podilqr_jax as pj
+
+    assert main(["tasks"]) == 0
+    assert capsys.readouterr().out.split() == list(pj.TASKS)
+
+
+def test_bench_tiny_runs_every_section_from_the_installed_package(tmp_path):
+    """`podilqr bench --tiny` (the smoke test of the command): every section at
+    the smallest size, run from outside the source tree, so it needs only the
+    installed package (child processes included)."""
+    out = tmp_path / "bench"
+    proc = subprocess.run(
+        [sys.executable, "-m", "podilqr_jax.cli", "bench", "--tiny", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr
+    report = json.loads((out / "bench.json").read_text())
+    sections = {"grids", "baselines", "tasks", "memory", "devices", "cache", "ls_memory"}
+    assert {"machine", "settings"} | sections <= set(report)
+    cells = report["grids"]["pendulum-full"]
+    assert [(c["n_s"], c["n_avg"]) for c in cells] == [(8, 1), (8, 2)]
+    assert all(c["iteration_s_median"] > 0 and c["recompiles_after_first"] == 0 for c in cells)
+    summary = report["tasks"]["pendulum-full"]
+    assert summary["rollout_throughput_vs_native"] > 0 and summary["speedup_vs_serial"] > 0
+    assert report["memory"][0]["finite"] and "error" not in report["memory"][0]
+    assert report["devices"][0]["devices"] == 2
+    cache = {row["mode"]: row for row in report["cache"]["runs"]}
+    assert set(cache) == {"off", "cold", "warm"} and not any("error" in row for row in cache.values())
+    assert cache["off"]["cache_entries"] == 0 < cache["cold"]["cache_entries"] <= cache["warm"]["cache_entries"]
+    assert report["cache"]["same_cost_warm_as_cold"]
+    rows = report["ls_memory"]["rows"]
+    assert [row["chunk"] for row in rows] == [None, 44] and rows[1]["max_rel_cost_diff_vs_first"] < 1e-9
+    for name in ("time_per_iteration.png", "phases.png", "throughput.png"):
+        assert (out / name).stat().st_size > 0
+    assert "| pendulum-full |" in proc.stdout
+
+
+def test_bench_bad_input_exits_2(tmp_path, capsys):
+    assert main(["bench", "--tasks", "rocket-full", "--out", str(tmp_path)]) == 2
+    assert "--tasks takes bundled tasks" in capsys.readouterr().err
+    assert main(["bench", "--sections", "grid,nope", "--out", str(tmp_path)]) == 2
+    assert "--sections takes a subset" in capsys.readouterr().err
+    assert not (tmp_path / "bench.json").exists()

@@ -27,7 +27,9 @@ SIGMAS = (1e-2, 1e-3, 1e-4)
 # Float64 rollouts: the fit's error is dominated by the curvature of the dynamics
 # (first order in sigma), far above round-off at these sigmas. We require each
 # 10x smaller sigma to cut the prediction error by at least 3x, and the smallest
-# sigma to predict within 1e-3 relative.
+# sigma to predict within 1e-3 relative. Over PRNG keys 0-5 (the test uses 0), all four tasks: the
+# shrink per decade was 9.1 .. 11.1 and the error at sigma = 1e-4 <= 2.6e-6 (noiseless, 12 smooth steps:
+# round-off cannot move these).
 MIN_SHRINK_PER_DECADE = 3.0
 FINAL_REL_ERROR = 1e-3
 

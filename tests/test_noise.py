@@ -95,7 +95,10 @@ def test_averaging_shrinks_the_noise_of_the_mean_trajectory():
     avg16 = perturbation_rollouts(dims, 2, 200, data, policy, key, sigma, n_avg=16, noisy=True).z
     s1 = float(jnp.std(single - clean))
     s16 = float(jnp.std(avg16 - clean))
-    # std of a mean of 16 independent repeats: 1/4 of one rollout's (200 x 11 samples: +-10%)
+    # std of a mean of 16 independent repeats: 1/4 of one rollout's. With this code over PRNG keys 0-9
+    # the ratio was 0.231 .. 0.282 (key 1: 0.237). The draws are threefry bits, the same on every CPU,
+    # through 10 smooth steps about the hanging rest (a 1e-12 change of x_0 left all 15 digits), so
+    # another machine changes it by round-off only.
     assert 0.2 < s16 / s1 < 0.3
 
 
@@ -195,4 +198,5 @@ def test_iv_estimator_solves_and_is_reproducible():
     b = pj.solve(env, cfg)
     assert a.cost_history == b.cost_history and a.config["estimator"] == "iv"
     assert np.all(np.isfinite(a.K)) and np.all(np.isfinite(a.true_cost_history))
+    # over seeds 0-7: last / first true cost 0.102 .. 0.106 (all three steps accepted), far from 1
     assert a.true_cost_history[-1] < a.true_cost_history[0]

@@ -101,7 +101,8 @@ def test_closed_loop_policy_equals_the_lqr_law_under_noise():
     policy = result.policy()
     K = np.asarray(policy.controller.K)
     # 2% against the 0.3-0.9% measured; a biased model, a missing step or a
-    # sign error is off by 10-100%.
+    # sign error is off by 10-100%. Over seeds 0-9 (this config): 0.37-0.88%,
+    # seed 0 the largest; a linear system, so no rounding is amplified.
     err = np.max(np.abs(K - K_true)) / np.max(np.abs(K_true))
     assert err < 2e-2, err
     # ... and the policy applies them: u = u_bar + K (x - x_bar) for any measurements.

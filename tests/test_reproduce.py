@@ -12,7 +12,7 @@ import json
 import pytest
 
 from podilqr_jax.cli import main
-from podilqr_jax.reproduce import StudySettings, format_table, run_study
+from podilqr_jax.reproduce import format_table
 
 ROW_KEYS = {
     "system",
@@ -31,13 +31,12 @@ ROW_KEYS = {
 }
 
 
-def test_reproduce_writes_summary_figures_and_table(tmp_path):
-    settings = StudySettings(
-        seeds=1, systems=("pendulum",), max_iterations={"pendulum": 2}, sweep_factors=(1.0, 3.0), horizon=8
-    )
-    rows = run_study(tmp_path, settings)
+def test_reproduce_writes_summary_figures_and_table(tmp_path, capsys):
+    """`podilqr reproduce --tiny` (the CLI's smoke test): every panel and the sweep."""
+    assert main(["reproduce", "--tiny", "--systems", "pendulum", "--out", str(tmp_path)]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["rows"] == json.loads(json.dumps(rows))
+    rows = summary["rows"]
+    assert format_table(rows) in capsys.readouterr().out
     assert summary["machine"]["backend"] == "cpu"
     for row in summary["rows"]:
         assert ROW_KEYS <= set(row)

@@ -21,6 +21,11 @@ UPRIGHT_TOLERANCE = 0.1
 
 pytestmark = pytest.mark.slow
 
+# Margins, measured with this test's code over seeds 0-4 and sigma * (1 + 1e-12) (seed 0) per task, 36
+# solves: status always converged or max_iterations (cartpole-partial ends either way at ~300
+# iterations); |POD / model-based - 1| <= 1.4e-5 (bound 1e-3); final angles <= 0.029 rad (bound 0.1);
+# first / final cost >= 11.3 (pendulum-full; bound 10, set by the start and the optimum, not by a draw).
+
 
 @pytest.mark.parametrize("task", pj.TASKS)
 def test_swing_up_matches_model_based_optimum(task):

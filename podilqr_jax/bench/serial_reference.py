@@ -1,6 +1,6 @@
 """Serial reference: POD-iLQR in plain NumPy on native MuJoCo, one rollout at a time.
 
-    python benchmarks/serial_reference.py --task pendulum-full --n-s 40 --iterations 80 [--compare]
+    python -m podilqr_jax.bench.serial_reference --task pendulum-full --n-s 40 --iterations 80 [--compare]
 
 The baseline for the speed benchmark: the same algorithm as ``podilqr_jax.solve``
 (noiseless, variant ``plain``, least-squares fit), written the way the paper

@@ -1,6 +1,6 @@
 """Native baseline: MuJoCo's multi-threaded C rollout against our MJX batch.
 
-    python benchmarks/native_rollout.py --task pendulum-full --batch 256,1024,4096 [--repeats 3] [--json PATH]
+    python -m podilqr_jax.bench.native_rollout --task pendulum-full --batch 256,1024,4096 [--repeats 3] [--json PATH]
 
 The same model, start state x0, controls [B, T, nu] (each held for ``substeps``
 physics steps) and batch B run through

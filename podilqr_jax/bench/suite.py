@@ -1,8 +1,8 @@
 """``podilqr bench``: where an iteration's time goes, how it grows with n_s x n_avg,
 and how it compares with what a user would otherwise run.
 
-    podilqr bench [--quick] [--tasks pendulum-full,cartpole-full] [--out DIR]
-    python benchmarks/bench.py ...            (the same)
+    podilqr bench [--quick | --tiny] [--tasks pendulum-full,cartpole-full] [--out DIR]
+    python -m podilqr_jax.bench ...            (the same)
 
 Per task:
 
@@ -16,9 +16,9 @@ Per task:
    device's peak memory.
 2. **Baselines**:
    - ``mujoco.rollout`` (native C, all threads) on the same model, controls
-     and batch (``native_rollout.py``): ``rollout_throughput_vs_native`` =
+     and batch (``bench/native_rollout.py``): ``rollout_throughput_vs_native`` =
      MJX rollouts/s / native rollouts/s at the largest batch of the run;
-   - the serial NumPy reference (``serial_reference.py``, one rollout at a
+   - the serial NumPy reference (``bench/serial_reference.py``, one rollout at a
      time with ``mujoco.mj_step``): ``speedup_vs_serial`` = its seconds per
      iteration / ours, noiseless, same settings, at ``serial_n_s`` rollouts
      per iteration; the full run also times both (and the model-based iLQR)
@@ -28,6 +28,13 @@ Per task:
    RSS, to show that memory follows the chunk, not the batch;
 4. **Devices** (subprocesses with ``XLA_FLAGS=--xla_force_host_platform_device_count=N``):
    seconds per iteration against the device count.
+5. **Cache** (``bench/compile_cache.py``): ``podilqr solve TASK --compare`` in
+   fresh processes with the persistent compilation cache off, cold and warm:
+   process wall time and compile time of each, and their ratios.
+6. **Line-search memory** (``bench/line_search_memory.py``): one noisy line
+   search of ``(n_alphas + 1) x n_forward`` rollouts per fresh process, one
+   process per chunk size: peak memory, time, and the costs against the
+   unchunked batch.
 
 Writes ``DIR/bench.json`` (the machine, every measurement, and per task the
 summary fields ``rollout_throughput_vs_native``, ``non_rollout_fraction``,
@@ -49,15 +56,12 @@ import sys
 import time
 from typing import Any, Optional
 
+import jax
+import mujoco
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-import jax  # noqa: E402
-import mujoco  # noqa: E402
-
-import podilqr_jax as pj  # noqa: E402
-from podilqr_jax.result import write_json_atomic  # noqa: E402
+import podilqr_jax as pj
+from podilqr_jax.result import write_json_atomic
 
 NON_ROLLOUT_PHASES = ("fit", "backward", "host")
 
@@ -76,6 +80,11 @@ class BenchSettings:
     memory_task: str = "cartpole-full"
     devices: tuple[int, ...] = (1, 2, 4)
     device_cell: tuple[int, int] = (256, 4)
+    cache_task: str = "cartpole-partial"
+    cache_sets: tuple[str, ...] = ()
+    ls_memory_task: str = "cartpole-partial"
+    ls_memory_n_forward: int = 10_000
+    ls_memory_chunks: tuple[Optional[int], ...] = (None, 22_000, 10_000, 5_000)
 
     @classmethod
     def quick(cls) -> "BenchSettings":
@@ -89,6 +98,33 @@ class BenchSettings:
             memory_batches=(4_096, 16_384),
             devices=(1, 2),
             device_cell=(64, 4),
+            cache_sets=("max_iterations=20",),
+            ls_memory_n_forward=1_000,
+            ls_memory_chunks=(None, 2_200, 1_000),
+        )
+
+    @classmethod
+    def tiny(cls) -> "BenchSettings":
+        """Every section at the smallest size that runs it: a smoke test (seconds
+        to a minute), not a measurement."""
+        return cls(
+            tasks=("pendulum-full",),
+            n_s=(8,),
+            n_avg=(1, 2),
+            iterations=1,
+            native_batch=32,
+            serial_n_s=8,
+            serial_iterations=1,
+            time_to_cost=False,
+            memory_batches=(256,),
+            memory_task="pendulum-full",
+            devices=(2,),
+            device_cell=(8, 2),
+            cache_task="pendulum-full",
+            cache_sets=("horizon=8", "max_iterations=2"),
+            ls_memory_task="pendulum-full",
+            ls_memory_n_forward=20,
+            ls_memory_chunks=(None, 44),
         )
 
 
@@ -140,7 +176,9 @@ def peak_device_mb() -> Optional[float]:
 def warm_and_timed(env, cfg, iterations: int):
     """A one-iteration solve that compiles every stage, then a timed solve of
     ``iterations`` iterations; returns both results and the per-iteration walls."""
-    warm, timed, walls = warm_and_timed(env, cfg, iterations)
+    warm = pj.solve(env, cfg.replace(max_iterations=1))
+    walls: list[float] = []
+    timed = pj.solve(env, cfg.replace(max_iterations=iterations), callback=lambda info: walls.append(info.wall_s))
     return warm, timed, walls
 
 
@@ -176,7 +214,7 @@ def grid_cell(task: str, n_s: int, n_avg: int, iterations: int) -> dict[str, Any
 
 def serial_comparison(task: str, n_s: int, iterations: int, time_to_cost: bool) -> dict[str, Any]:
     """Seconds per iteration of the serial NumPy reference and of ours, noiseless plain POD-iLQR."""
-    from serial_reference import serial_solve
+    from .serial_reference import serial_solve
 
     env = pj.make_task(task)
     cfg = pj.default_config(env, n_s=n_s)
@@ -200,7 +238,7 @@ def _time_to_cost(env, cfg, ours_compile_s: float) -> dict[str, Any]:
     """Wall time for each method to first reach the model-based optimum x (1 + 1e-3):
     ours (compiled; the compile time of its stages is added for the cold figure),
     the serial reference, and the model-based iLQR (compiled)."""
-    from serial_reference import serial_solve
+    from .serial_reference import serial_solve
 
     first = pj.solve_model_based(env)  # compiles the model-based stages
     target = first.final_cost * (1 + 1e-3)
@@ -232,15 +270,12 @@ def _time_to_cost(env, cfg, ours_compile_s: float) -> dict[str, Any]:
     }
 
 
-_CHILD = os.path.abspath(__file__)
-
-
 def _child(args: list[str], env_extra: dict[str, str]) -> dict[str, Any]:
+    """``python -m podilqr_jax.bench ARGS`` in a fresh process; its last stdout line, parsed."""
     env = dict(os.environ)
     env.update(env_extra)
-    root = os.path.dirname(os.path.dirname(_CHILD))
-    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
-    out = subprocess.run([sys.executable, _CHILD, *args], env=env, capture_output=True, text=True, timeout=3600)
+    cmd = [sys.executable, "-m", "podilqr_jax.bench", *args]
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=3600)
     if out.returncode != 0:
         return {"error": out.stderr.strip().splitlines()[-1] if out.stderr.strip() else f"exit {out.returncode}"}
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -285,7 +320,7 @@ def devices_child(task: str, n_s: int, n_avg: int, iterations: int) -> dict[str,
     return row
 
 
-SECTIONS = ("grid", "baselines", "memory", "devices")
+SECTIONS = ("grid", "baselines", "memory", "devices", "cache", "ls_memory")
 
 
 def run(settings: BenchSettings, out: str, progress=print, sections=SECTIONS) -> dict[str, Any]:
@@ -309,6 +344,10 @@ def run(settings: BenchSettings, out: str, progress=print, sections=SECTIONS) ->
         report["memory"] = run_memory(settings, progress)
     if "devices" in sections:
         report["devices"] = run_devices(settings, progress)
+    if "cache" in sections:
+        report["cache"] = run_cache(settings, progress)
+    if "ls_memory" in sections:
+        report["ls_memory"] = run_ls_memory(settings, progress)
     write_json_atomic(path, report)
     if "tasks" in report:
         plot(report, out)
@@ -334,7 +373,7 @@ def run_grid(settings: BenchSettings, progress) -> dict[str, list[dict[str, Any]
 
 def run_baselines(settings: BenchSettings, progress) -> dict[str, dict[str, Any]]:
     """Native mujoco.rollout and the serial reference (and time to cost), per task."""
-    from native_rollout import compare
+    from .native_rollout import compare
 
     out: dict[str, dict[str, Any]] = {}
     for task in settings.tasks:
@@ -398,6 +437,35 @@ def run_devices(settings: BenchSettings, progress) -> list[dict[str, Any]]:
         devices.append(row)
         progress(f"devices={count}: {row.get('iteration_s_median', row.get('error'))}")
     return devices
+
+
+def run_cache(settings: BenchSettings, progress) -> dict[str, Any]:
+    """``podilqr solve TASK --compare`` in fresh processes with the persistent
+    compilation cache off, cold and warm (``compile_cache.cold_warm``)."""
+    from .compile_cache import cold_warm
+
+    report = cold_warm(settings.cache_task, settings.cache_sets)
+    for row in report["runs"]:
+        if "error" in row:
+            progress(f"cache {row['mode']}: {row['error']}")
+        else:
+            progress(
+                f"cache {row['mode']:4s}: {settings.cache_task} --compare {row['process_wall_s']:.1f} s "
+                f"in the process, compiling {row['compile_s_total']:.1f} s"
+            )
+    return report
+
+
+def run_ls_memory(settings: BenchSettings, progress) -> dict[str, Any]:
+    """Peak memory of one noisy line search of ``(n_alphas + 1) x n_forward``
+    rollouts against its chunk (``line_search_memory.peak_memory_vs_chunk``)."""
+    from .line_search_memory import peak_memory_vs_chunk
+
+    report = peak_memory_vs_chunk(settings.ls_memory_task, settings.ls_memory_n_forward, settings.ls_memory_chunks)
+    for row in report["rows"]:
+        what = row.get("error") or f"peak {row['peak_host_mb']:.0f} MB, {row['wall_s_with_compile']:.1f} s"
+        progress(f"line search n_forward={settings.ls_memory_n_forward} chunk={row['chunk']}: {what}")
+    return report
 
 
 def plot(report: dict[str, Any], out: str) -> list[str]:
@@ -480,7 +548,9 @@ def format_summary(report: dict[str, Any]) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="podilqr bench", description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="a small grid: a few minutes on a CPU")
+    size = parser.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="a small grid: a few minutes on a CPU")
+    size.add_argument("--tiny", action="store_true", help="every section at the smallest size: a smoke test")
     parser.add_argument(
         "--tasks", default=None, help="comma-separated bundled tasks (default pendulum-full,cartpole-full)"
     )
@@ -488,7 +558,7 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--sections",
         default=",".join(SECTIONS),
-        help="comma-separated subset of grid,baselines,memory,devices (others keep DIR/bench.json's values)",
+        help=f"comma-separated subset of {','.join(SECTIONS)} (others keep DIR/bench.json's values)",
     )
     parser.add_argument("--memory-child", nargs=2, metavar=("TASK", "BATCH"), help=argparse.SUPPRESS)
     parser.add_argument("--devices-child", nargs=4, metavar=("TASK", "N_S", "N_AVG", "IT"), help=argparse.SUPPRESS)
@@ -500,7 +570,7 @@ def main(argv=None) -> int:
         task, n_s, n_avg, it = args.devices_child
         print(json.dumps(devices_child(task, int(n_s), int(n_avg), int(it))))
         return 0
-    settings = BenchSettings.quick() if args.quick else BenchSettings()
+    settings = BenchSettings.quick() if args.quick else BenchSettings.tiny() if args.tiny else BenchSettings()
     if args.tasks:
         tasks = tuple(t.strip() for t in args.tasks.split(",") if t.strip())
         unknown = [t for t in tasks if t not in pj.TASKS]

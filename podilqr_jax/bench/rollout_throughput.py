@@ -1,6 +1,6 @@
 """Rollout throughput: our MJX batch against MuJoCo's native multi-threaded rollout.
 
-    python benchmarks/rollout_throughput.py [--batch 1024] [--repeats 3]
+    python -m podilqr_jax.bench.rollout_throughput [--batch 1024] [--repeats 3]
 
 For each bundled system, the same model, start state, controls and batch run
 through (a) podilqr_jax's jitted MJX rollout (``perturbation_rollouts``) and
