@@ -14,6 +14,10 @@ import threading
 import jax
 
 _BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
+# An executable loaded from the persistent compilation cache (``cache``) is
+# reported as a backend compilation too (its duration then is the load), and
+# besides by this event, counted in ``cache_loads``.
+_CACHE_LOAD = "/jax/compilation_cache/cache_retrieval_time_sec"
 _COMPILE_EVENTS = (
     _BACKEND_COMPILE,
     "/jax/core/compile/jaxpr_trace_duration",
@@ -26,6 +30,10 @@ _installed = False
 
 
 def _listener(event: str, duration: float, **_: object) -> None:
+    if event == _CACHE_LOAD:
+        for watch in list(_active):
+            watch.cache_loads += 1
+        return
     if event not in _COMPILE_EVENTS:
         return
     for watch in list(_active):
@@ -43,12 +51,14 @@ def _install() -> None:
 
 
 class CompileWatch:
-    """Context manager: ``compiles`` (backend compilations) and ``seconds``
-    (trace + lower + compile) seen while active."""
+    """Context manager: ``compiles`` (backend compilations and executables
+    loaded from the persistent cache), ``cache_loads`` (the latter alone) and
+    ``seconds`` (trace + lower + compile or load) seen while active."""
 
     def __init__(self) -> None:
         _install()
         self.compiles = 0
+        self.cache_loads = 0
         self.seconds = 0.0
 
     def __enter__(self) -> "CompileWatch":

@@ -16,6 +16,14 @@ from .errors import ConfigError
 from .estimators import ESTIMATORS, n_instruments
 from .info_state import n_regressors
 
+IMPLS = ("jax", "warp")
+"""MJX's implementations a solve can run its rollouts on (``SolverConfig.impl``):
+``jax`` (the default, any device) and ``warp`` (NVIDIA Warp kernels, on a CUDA
+GPU or the CPU; needs ``warp-lang``: ``pip install 'podilqr_jax[cuda]'``).
+MJX 3.17 also has ``cpp`` (MuJoCo's C engine as a JAX call), which its
+``make_data`` ties to host-side references that a jitted, vmapped rollout
+cannot carry; it is not offered."""
+
 VARIANTS = ("plain", "feedback", "averaged", "nominal")
 """The paper's variants (docs/noise.md):
 
@@ -69,10 +77,14 @@ class SolverConfig:
         perturbations and older outputs as instruments, consistent under
         measurement noise at n_avg = 1; see ``estimators`` and
         docs/estimators.md). Works with every variant.
-      memory_budget_mb: the sysid batch (n_s x n_avg rollouts) runs in chunks
-        that fit this budget (``rollout.bytes_per_rollout`` estimates a
-        rollout's share); a batch that fits runs at once.
-      rollout_chunk: rollouts per chunk, overriding the budget.
+      memory_budget_mb: the sysid batch (n_s x n_avg rollouts) and the line
+        search's ((n_alphas + 1) x n_forward under noise) run in chunks that
+        fit this budget (``rollout.bytes_per_rollout`` estimates a rollout's
+        share); a batch that fits runs at once.
+      rollout_chunk: rollouts per chunk (of both batches), overriding the budget.
+      impl: MJX implementation of the solve's rollouts, one of ``IMPLS``
+        (``jax`` or ``warp``). The model-based reference differentiates
+        through MJX and always runs ``jax``.
     """
 
     q: Optional[int] = None
@@ -96,6 +108,7 @@ class SolverConfig:
     estimator: str = "ols"
     memory_budget_mb: float = 2048.0
     rollout_chunk: Optional[int] = None
+    impl: str = "jax"
 
     def replace(self, **changes: Any) -> "SolverConfig":
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
@@ -116,14 +129,16 @@ class SolverConfig:
             return self.n_avg
         return 10 if self.variant == "averaged" else 1
 
-    def resolved_chunk(self, bytes_per_rollout: int) -> int:
-        """Rollouts per chunk of the sysid batch: ``rollout_chunk`` when set,
-        else as many whole repeat groups as ``memory_budget_mb`` holds."""
+    def resolved_chunk(self, bytes_per_rollout: int, group: Optional[int] = None) -> int:
+        """Rollouts per chunk of a batch: ``rollout_chunk`` when set, else as
+        many whole groups of ``group`` rollouts (default: the sysid batch's
+        repeat groups, n_avg) as ``memory_budget_mb`` holds. The line search
+        asks with ``group=1`` and arranges its candidates itself."""
         if self.rollout_chunk is not None:
             return self.rollout_chunk
         fit = int(self.memory_budget_mb * 2**20 // max(1, bytes_per_rollout))
-        n_avg = self.resolved_n_avg()
-        return max(n_avg, fit - fit % n_avg)
+        group = self.resolved_n_avg() if group is None else group
+        return max(group, fit - fit % group)
 
     def resolved_n_forward(self) -> int:
         if self.n_forward is not None:
@@ -145,6 +160,7 @@ class SolverConfig:
                         f"`{name}`={value} only applies to variant='averaged' (got variant={self.variant!r}); "
                         f"set variant='averaged' or drop {name}."
                     )
+        check_impl(self.impl)
         _positive("mu_cap", self.mu_cap)
         _positive("memory_budget_mb", self.memory_budget_mb)
         if self.rollout_chunk is not None:
@@ -194,6 +210,23 @@ class SolverConfig:
                     "times more is better), or lower q."
                 )
         return q
+
+
+def check_impl(impl: Any) -> None:
+    """Refuse an MJX implementation that is unknown or not installed, saying how to get it."""
+    if impl not in IMPLS:
+        raise ConfigError(
+            f"Unknown `impl` {impl!r}; choose one of {', '.join(IMPLS)} (MJX's JAX or Warp implementation)."
+        )
+    if impl == "warp":
+        from mujoco.mjx import warp as mjx_warp  # imported (quietly) with the package
+
+        if not getattr(mjx_warp, "WARP_INSTALLED", False):
+            raise ConfigError(
+                "`impl`='warp' runs MJX's Warp implementation, which needs the `warp-lang` package (not "
+                "installed here). Install it with `pip install 'podilqr_jax[cuda]'` (GPU builds of JAX and "
+                "Warp) or `pip install warp-lang`, or use impl='jax'."
+            )
 
 
 def fully_observed(env: Env) -> bool:

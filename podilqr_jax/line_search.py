@@ -17,12 +17,21 @@ n_alphas x n_fwd; the driver then also passes alpha = 0 as the last candidate.
 It can never be accepted (its predicted decrease is zero), so when nothing is
 accepted the chosen candidate is a fresh measurement of the current policy:
 that is how the driver re-measures a nominal whose cost was a lucky draw.
+
+Memory: a batch larger than ``chunk`` rollouts (the solver's memory budget,
+``SolverConfig.resolved_chunk``) runs as a ``lax.map`` over chunks
+(``_chunked_candidates``): whole candidates per chunk when a candidate's
+``n_fwd`` rollouts fit in one, else each candidate in sub-chunks of ``chunk``
+rollouts whose sums are accumulated. The noise is drawn for the whole batch
+as without chunks (a small share of a rollout's memory: its inputs, not its
+MJX data), so the chunked batch runs the same rollouts and gives the same
+result to round-off.
 """
 
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +39,7 @@ import jax.numpy as jnp
 from .cost import batch_costs
 from .env import EnvData, EnvDims
 from .info_state import info_states
-from .noise import sample_noise
+from .noise import Noise, sample_noise
 from .rollout import Policy, Trajectory, average_repeats, shard_batch, simulate
 
 
@@ -45,7 +54,7 @@ class LineSearchResult(NamedTuple):
     n_diverged: jnp.ndarray  # int: candidates with a non-finite rollout or cost (never accepted)
 
 
-@functools.partial(jax.jit, static_argnames=("dims", "q", "n_fwd", "noisy"))
+@functools.partial(jax.jit, static_argnames=("dims", "q", "n_fwd", "noisy", "chunk"))
 def line_search(
     dims: EnvDims,
     q: int,
@@ -60,15 +69,20 @@ def line_search(
     key: jax.Array,
     n_fwd: int = 1,
     noisy: bool = False,
+    chunk: Optional[int] = None,
 ) -> LineSearchResult:
-    offsets = alphas[:, None, None] * k[None]
-    if n_fwd > 1:
-        offsets = jnp.repeat(offsets, n_fwd, axis=0)
+    n_cand = alphas.shape[0]
+    batch = n_cand * n_fwd
+    candidate_offsets = alphas[:, None, None] * k[None]
     no_perturbation = jnp.zeros((dims.horizon, dims.nu), k.dtype)
-    noise = sample_noise(key, data.noise, offsets.shape[0], dims.horizon) if noisy else None
-    offsets, noise = shard_batch((offsets, noise), offsets.shape[0])
-    traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True, noise=noise)
-    traj = average_repeats(traj, n_fwd)
+    noise = sample_noise(key, data.noise, batch, dims.horizon) if noisy else None
+    if chunk is not None and batch > chunk:
+        traj = _chunked_candidates(dims, q, data, policy, candidate_offsets, noise, n_fwd, chunk)
+    else:
+        offsets = jnp.repeat(candidate_offsets, n_fwd, axis=0) if n_fwd > 1 else candidate_offsets
+        offsets, noise = shard_batch((offsets, noise), batch)
+        traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True, noise=noise)
+        traj = average_repeats(traj, n_fwd)
     cost, finite = batch_costs(traj.z, traj.u, data)
     expected = -(alphas * dV1 + alphas**2 * dV2)
     ratio = (cost0 - cost) / jnp.where(expected > 0, expected, jnp.inf)
@@ -78,3 +92,60 @@ def line_search(
     chosen = jax.tree_util.tree_map(lambda a: a[i], traj)
     Z = info_states(chosen.z, chosen.u, q)
     return LineSearchResult(accepted, alphas[i], cost[i], chosen, Z, cost, expected, jnp.sum(~finite))
+
+
+def _chunked_candidates(dims, q, data, policy, offsets, noise: Optional[Noise], n_fwd: int, chunk: int) -> Trajectory:
+    """The candidates' mean rollouts [n_cand, ...], at most ``chunk`` rollouts at a time.
+
+    ``offsets`` [n_cand, T, nu]; ``noise`` per rollout, candidate-major
+    ([n_cand n_fwd, ...], as the unchunked batch has it) or None."""
+    n_cand, T, nu = offsets.shape
+    zero = jnp.zeros((T, nu), offsets.dtype)
+    per_cand = (
+        None if noise is None else jax.tree_util.tree_map(lambda a: a.reshape((n_cand, n_fwd) + a.shape[1:]), noise)
+    )
+
+    def rollouts(offset, noise_part, count):
+        """``count`` rollouts of one candidate (noiseless: one, broadcast)."""
+        if noise_part is None:
+            one = simulate(dims, q, data, policy, offset, zero, record_state=True)
+            return jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (count,) + a.shape), one)
+        return simulate(dims, q, data, policy, jnp.broadcast_to(offset, (count, T, nu)), zero, True, noise_part)
+
+    if n_fwd <= chunk:  # whole candidates per chunk
+
+        def candidate(args):
+            offset, noise_c = args
+            return average_repeats(rollouts(offset, noise_c, n_fwd), n_fwd)
+
+        traj = jax.lax.map(candidate, (offsets, per_cand), batch_size=max(1, chunk // n_fwd))
+        return jax.tree_util.tree_map(lambda a: a[:, 0] if a is not None else None, traj)
+
+    # A candidate's n_fwd rollouts in sub-chunks of ``chunk`` (the last one
+    # padded with zero noise and left out of the sum).
+    n_sub = -(-n_fwd // chunk)
+    pad = n_sub * chunk - n_fwd
+    weights = (jnp.arange(n_sub * chunk) < n_fwd).astype(offsets.dtype).reshape(n_sub, chunk)
+
+    def candidate(args):
+        offset, noise_c = args
+        if noise_c is not None:
+            noise_c = jax.tree_util.tree_map(
+                lambda a: jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)).reshape((n_sub, chunk) + a.shape[1:]),
+                noise_c,
+            )
+
+        def sub(total, part):
+            w, noise_s = part
+            traj = rollouts(offset, noise_s, chunk)
+            return jax.tree_util.tree_map(lambda acc, a: acc + jnp.tensordot(w, a, axes=1), total, traj), None
+
+        init = Trajectory(
+            jnp.zeros((T + 1, dims.nz), offsets.dtype),
+            jnp.zeros((T, nu), offsets.dtype),
+            jnp.zeros((T + 1, dims.nx), offsets.dtype),
+        )
+        total, _ = jax.lax.scan(sub, init, (weights, noise_c))
+        return jax.tree_util.tree_map(lambda a: a / n_fwd, total)
+
+    return jax.lax.map(candidate, (offsets, per_cand))

@@ -6,10 +6,31 @@ Linux's default limit of 65530 mappings per process (``vm.max_map_count``) and
 aborts inside the compiler. Dropping JAX's caches after each test module keeps
 the count to what one module needs (measured: ~10,000 after
 tests/test_properties.py alone).
+
+The suite has its own persistent compilation cache (``podilqr_jax.cache``): a
+fresh folder per pytest run, set before any test module imports the package
+and removed at the end, so a module that compiles what an earlier one already
+compiled loads it from disk, and the user's ~/.cache is left alone. Every run
+starts cold, so the tests stay correct without a cache. ``PODILQR_CACHE=0``
+switches it off.
 """
+
+import os
+import shutil
+import tempfile
 
 import jax
 import pytest
+
+_TEST_CACHE = None
+if os.environ.get("PODILQR_CACHE", "1") != "0":
+    _TEST_CACHE = tempfile.mkdtemp(prefix="podilqr-pytest-jax-cache-")
+    os.environ["PODILQR_CACHE_DIR"] = _TEST_CACHE
+
+
+def pytest_unconfigure(config):
+    if _TEST_CACHE is not None:
+        shutil.rmtree(_TEST_CACHE, ignore_errors=True)
 
 
 @pytest.fixture(autouse=True, scope="module")
