@@ -19,6 +19,7 @@ as a static jit argument: changing them recompiles) and a pytree of arrays
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import os
 from typing import Any, Mapping, NamedTuple
@@ -31,6 +32,7 @@ from mujoco import mjx
 
 from .errors import ModelLoadError, TaskError
 from .noise import NoiseLevels, NoiseModel, noise_levels
+from .package_files import is_package_path, resolve_model_path
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,6 +86,7 @@ class Env:
     solver_defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     noise: NoiseModel = NoiseModel()
     observation: Any = None  # the observation as given (kept by ``replace``)
+    model_notes: tuple[str, ...] = ()  # options switched off on the MJX copy (``mjx_model_of``)
 
     # ----------------------------------------------------------------- building
     @classmethod
@@ -106,7 +109,9 @@ class Env:
         """Load an MJCF file and describe the task on it.
 
         Args:
-          path: the MJCF file.
+          path: the MJCF file, or ``pkg://PACKAGE/PATH`` for a file inside an
+            installed package (``pkg://dm_control/suite/cartpole.xml``; see
+            ``package_files``).
           observation: ``"full"`` (all of qpos and qvel), ``"qpos"`` (all
             positions), a mapping ``{"qpos": [...], "qvel": [...],
             "sensors": [...]}`` whose qpos/qvel entries are indices or joint
@@ -132,6 +137,8 @@ class Env:
             deviations. Default: none (a deterministic system).
         """
         path = os.fspath(path)
+        if is_package_path(path):  # pkg://PACKAGE/PATH: a file inside an installed package
+            path = resolve_model_path(path)
         if not os.path.exists(path):
             raise ModelLoadError(
                 f"The model file {path!r} does not exist. Give the path of an "
@@ -185,14 +192,7 @@ class Env:
             )
         _check_int("substeps", substeps, minimum=1)
         _check_int("horizon", horizon, minimum=1)
-        try:
-            mjx_model = mjx.put_model(mj_model)
-        except Exception as exc:
-            raise ModelLoadError(
-                f"MJX cannot load the model {name!r}: {type(exc).__name__}: {exc}. "
-                "MJX supports a subset of MuJoCo (no `energy` flag, no fluid "
-                "forces, limited geom pairs, ...); remove or replace the feature it names."
-            ) from None
+        mjx_model, notes = mjx_model_of(mj_model, name)
 
         obs = _observation_matrix(mj_model, observation)
         C, labels = obs.C, obs.labels
@@ -235,6 +235,7 @@ class Env:
             solver_defaults=dict(solver_defaults or {}),
             noise=noise_model,
             observation=observation,
+            model_notes=notes,
         )
 
     # --------------------------------------------------------------- variations
@@ -337,6 +338,76 @@ class Env:
             f"Env({self.name!r}, nq={d.nq}, nv={d.nv}, nu={d.nu}, nz={d.nz}{limits}, "
             f"horizon={d.horizon}, control_dt={self.control_dt:g}{noise})"
         )
+
+
+# ------------------------------------------------------------ MJX compatibility
+# Options of MuJoCo that MJX refuses but that do not change the simulated
+# motion: they are switched off on the copy handed to MJX, with a note.
+_REPORTING_ONLY = (
+    (mujoco.mjtEnableBit.mjENBL_ENERGY, "energy", "it only computes kinetic and potential energy for reporting"),
+    (mujoco.mjtEnableBit.mjENBL_FWDINV, "fwdinv", "it only compares forward and inverse dynamics for reporting"),
+)
+_MJX_INTEGRATORS = tuple(int(getattr(mujoco.mjtIntegrator, f"mjINT_{i}")) for i in ("EULER", "RK4", "IMPLICITFAST"))
+
+
+def mjx_model_of(mj_model: mujoco.MjModel, name: str = "model", impl: str = "jax") -> tuple[Any, tuple[str, ...]]:
+    """The ``mjx.Model`` of ``mj_model`` (MJX implementation ``impl``) and a note per option switched off.
+
+    MJX refuses some MuJoCo options that do not change the dynamics; those are
+    switched off on a copy (``mj_model`` itself is left as it is), each with a
+    one-line note (``Env.model_notes``, ``Result.warnings``, the CLI's output):
+
+    - ``<flag energy="enable">`` and ``<flag fwdinv="enable">``: reporting only;
+    - ``solver="PGS"``: replaced by ``Newton``, which solves the same convex
+      constraint problem (the forces agree to the solvers' tolerance).
+
+    A feature that changes the dynamics and that MJX cannot simulate (an
+    integrator other than Euler, RK4 and implicitfast; actuators with
+    activation state, whose ``act`` is not part of the task's state
+    [qpos, qvel]; a geom pair without collision function; flex; ...) is
+    refused with a :class:`ModelLoadError` that names it.
+    """
+    m = copy.deepcopy(mj_model)
+    notes = []
+    for bit, flag, why in _REPORTING_ONLY:
+        if m.opt.enableflags & int(bit):
+            m.opt.enableflags &= ~int(bit)
+            notes.append(f"MuJoCo's `{flag}` flag is switched off for MJX, which does not implement it ({why})")
+    if m.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
+        m.opt.solver = int(mujoco.mjtSolver.mjSOL_NEWTON)
+        notes.append(
+            "the constraint solver PGS is replaced by Newton for MJX, which has no PGS "
+            "(both solve the same convex constraint problem)"
+        )
+    if m.opt.integrator not in _MJX_INTEGRATORS:
+        integrator = mujoco.mjtIntegrator(m.opt.integrator).name[6:].lower()
+        raise ModelLoadError(
+            f"MJX cannot simulate the model {name!r}: its integrator is {integrator!r}, and MJX steps only "
+            "'Euler', 'RK4' and 'implicitfast'. Set <option integrator=\"implicitfast\"/> (or RK4) in the MJCF "
+            "file; this changes the discrete-time dynamics slightly."
+        )
+    try:
+        # This process's first device (MJX's default, jax.devices()[0], is process 0's under jax.distributed).
+        mjx_model = mjx.put_model(m, impl=impl, device=jax.local_devices()[0])
+    except Exception as exc:
+        raise ModelLoadError(
+            f"MJX cannot load the model {name!r}: {type(exc).__name__}: {exc}. MJX supports a subset of "
+            "MuJoCo (no flex; a subset of the geom pairs, sensors, actuators and options); remove "
+            "or replace the feature it names (for a geom pair: contype/conaffinity = 0 on one of them)."
+        ) from None
+    if m.na:
+        stateful = [
+            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator {i}"
+            for i in range(m.nu)
+            if m.actuator_dyntype[i] != mujoco.mjtDyn.mjDYN_NONE
+        ]
+        listed = ", ".join(stateful[:5]) + (f" and {len(stateful) - 5} more" if len(stateful) > 5 else "")
+        raise TaskError(
+            f"The model {name!r} has actuators with activation dynamics ({listed}: dyntype integrator, "
+            "filter or muscle); their activation `act` is a state that the task's state [qpos, qvel] does "
+            "not hold. Use actuators without dynamics (motor, position, velocity, general with dyntype none)."
+        )
+    return mjx_model, tuple(notes)
 
 
 # --------------------------------------------------------------------- helpers

@@ -15,6 +15,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import mujoco
 from mujoco import mjx
 
 from .env import EnvData, EnvDims
@@ -37,3 +38,14 @@ def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar) -> LinearModel:
     u_lin = jnp.clip(u_bar, data.u_low + 1e-9 * span, data.u_high - 1e-9 * span)
     A, B = jax.vmap(jax.jacfwd(f, argnums=(0, 1)))(x_bar[:-1], u_lin)
     return LinearModel(A, B)
+
+
+def nonfinite_hint(mj_model: mujoco.MjModel) -> str:
+    """Why MJX's exact Jacobian may hold NaN, where the model says so (for the
+    message of a model-based solve that stops ``nonfinite``)."""
+    if mj_model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC:
+        return (
+            " (the model uses the elliptic friction cone, whose forward-mode derivative in MJX is NaN at an "
+            'active contact; with <option cone="pyramidal"/> it is finite. POD-iLQR itself needs no derivative)'
+        )
+    return ""

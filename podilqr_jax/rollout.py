@@ -74,9 +74,24 @@ def open_loop_policy(u_bar: jnp.ndarray, nZ: int) -> Policy:
 
 
 def physics_step(dims: EnvDims, model, d, u: jnp.ndarray):
-    """One control step: hold ``u`` for ``dims.substeps`` MuJoCo steps."""
-    d = d.replace(ctrl=u)
-    return jax.lax.fori_loop(0, dims.substeps, lambda _, dd: mjx.step(model, dd), d)
+    """One control step: hold ``u`` for ``dims.substeps`` MuJoCo steps.
+
+    Returns data of the same dtypes as ``d``, so that the loops carrying it
+    (this one and the rollouts' scans) keep one carry type: with x64 on, MJX's
+    tendon stage writes its wrap indices (``ten_wrapadr``, ``ten_wrapnum``,
+    ``wrap_obj``) as int64 where ``mjx.make_data`` made them int32.
+    """
+
+    def one_step(_, dd):
+        return jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), mjx.step(model, dd), dd)
+
+    return jax.lax.fori_loop(0, dims.substeps, one_step, d.replace(ctrl=u))
+
+
+def make_data(model):
+    """``mjx.make_data`` for ``model`` in the model's own MJX implementation
+    (``jax`` or ``warp``, see ``SolverConfig.impl``)."""
+    return mjx.make_data(model, impl=getattr(model, "impl", None))
 
 
 def observe(dims: EnvDims, data: EnvData, d, x: jnp.ndarray) -> jnp.ndarray:
@@ -90,7 +105,7 @@ def observe(dims: EnvDims, data: EnvData, d, x: jnp.ndarray) -> jnp.ndarray:
 @functools.partial(jax.jit, static_argnames=("dims",))
 def observations_of(dims: EnvDims, data: EnvData, x: jnp.ndarray) -> jnp.ndarray:
     """The noise-free observations of states x [N, nx] (sensors recomputed)."""
-    d0 = mjx.make_data(data.model)
+    d0 = make_data(data.model)
     return jax.vmap(lambda x_i: observe(dims, data, with_state(dims, d0, x_i), x_i))(x)
 
 
@@ -114,7 +129,7 @@ def _rollout_one(
     model = data.model
     T = dims.horizon
     x0 = data.x0 if noise is None else data.x0 + noise.dx0
-    d = with_state(dims, mjx.make_data(model), x0)
+    d = with_state(dims, make_data(model), x0)
     z0 = observe(dims, data, d, x0)
     if noise is None:
         w = v_next = jnp.zeros((T, 0), x0.dtype)  # nothing to add; keeps one scan body
@@ -215,16 +230,20 @@ def shard_batch(tree, batch: int):
     return jax.tree_util.tree_map(lambda a: jax.lax.with_sharding_constraint(a, sharding), tree)
 
 
-def bytes_per_rollout(dims: EnvDims, data: EnvData, noisy: bool = True) -> int:
+def bytes_per_rollout(dims: EnvDims, data: EnvData, noisy: bool = True, record_state: bool = False) -> int:
     """A conservative estimate of the memory one sysid rollout holds while it
     runs: its MJX data (carry and a step's temporaries, counted 8 times), its
-    inputs and outputs. Used to turn a memory budget into a chunk size; the
+    inputs and outputs (with ``record_state``, as in the line search, also
+    its states). Used to turn a memory budget into a chunk size; the
     benchmark (docs/performance.md) measures the real peak."""
-    mjx_bytes = sum(np.asarray(leaf).nbytes for leaf in jax.tree_util.tree_leaves(mjx.make_data(data.model)))
+    shapes = jax.tree_util.tree_leaves(jax.eval_shape(make_data, data.model))  # no device memory touched
+    mjx_bytes = sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in shapes)
     T, nx = dims.horizon, dims.nx
     floats = (T + 1) * dims.nz + 2 * T * dims.nu  # z, u, du
     if noisy:
         floats += nx + T * nx + (T + 1) * dims.nz  # dx0, w, v
+    if record_state:
+        floats += (T + 1) * nx  # x
     return int(8 * mjx_bytes + 8 * floats)
 
 

@@ -4,7 +4,8 @@ Schema (every key optional unless marked; the model path is relative to the
 task file; see docs/task_files.md for a worked example)::
 
     name = "my-pendulum"
-    model = "pendulum.xml"        # required: an MJCF file
+    model = "pendulum.xml"        # required: an MJCF file, or a file inside an
+                                  # installed package: "pkg://dm_control/suite/pendulum.xml"
     substeps = 5                  # physics steps per control step
     horizon = 30                  # control steps T
     target = [0.0]                # z*, length nz (before the first [table]!)
@@ -46,6 +47,7 @@ import tomllib
 from .config import SolverConfig
 from .env import Env
 from .errors import TaskError
+from .package_files import resolve_model_path
 
 _TOP_KEYS = {"name", "model", "substeps", "horizon", "observation", "start", "target", "cost", "solver", "noise"}
 _COST_KEYS = {"Q", "QT", "R"}
@@ -84,7 +86,10 @@ def task_from_spec(spec: dict[str, Any], base_dir: str, default_name: str = "tas
     if unknown:
         raise TaskError(f"Unknown key(s) {sorted(unknown)} in the task file; known keys: {sorted(_TOP_KEYS)}.")
     if "model" not in spec:
-        raise TaskError('The task file needs `model = "path/to/model.xml"` (relative to the task file).')
+        raise TaskError(
+            'The task file needs `model = "path/to/model.xml"` (relative to the task file) '
+            'or `model = "pkg://PACKAGE/PATH.xml"` (a file inside an installed package).'
+        )
     cost = spec.get("cost", {})
     if not isinstance(cost, dict) or set(cost) - _COST_KEYS:
         raise TaskError(f"[cost] must be a table with keys among {sorted(_COST_KEYS)}; got {cost!r}.")
@@ -112,7 +117,7 @@ def task_from_spec(spec: dict[str, Any], base_dir: str, default_name: str = "tas
     if not isinstance(solver, dict):
         raise TaskError(f"[solver] must be a table of solver settings; got {solver!r}.")
     SolverConfig().replace(**solver)  # unknown keys fail here, with the list of known ones
-    model_path = os.path.join(base_dir, str(spec["model"]))
+    model_path = resolve_model_path(str(spec["model"]), base_dir)  # or pkg://PACKAGE/PATH
     noise = spec.get("noise")
     if noise is not None and not isinstance(noise, dict):
         raise TaskError(f"[noise] must be a table with keys initial, process, measurement; got {noise!r}.")
