@@ -99,7 +99,7 @@ class Result:
     diverged_rollouts: int = 0  # sysid rollouts left out of the fit as non-finite
     diverged_candidates: int = 0  # line-search candidates rejected as non-finite
     mu_retries: int = 0  # backward passes redone with a larger mu after a rejected step
-    warnings: list[str] = dataclasses.field(default_factory=list)
+    warnings: list[str] = dataclasses.field(default_factory=list)  # also the options switched off for MJX
     control_limits: list = dataclasses.field(default_factory=list)  # [nu][low, high] ctrlrange; [] when unlimited
 
     @property
@@ -118,6 +118,16 @@ class Result:
         from .policy import FeedbackPolicy
 
         return FeedbackPolicy.from_result(self, name)
+
+    def animate(self, path: str | os.PathLike, env=None, **options):
+        """Write the nominal motion as a GIF (or MP4) at real time, with the
+        time and the cost so far on each frame; ``options`` as
+        :func:`podilqr_jax.animate.animate` (``episodes``, ``noise``,
+        ``compare``, ``width``, ``height``, ``fps``, ``renderer`` ...).
+        ``env``: the task (default: rebuilt from ``task``)."""
+        from .animate import animate
+
+        return animate(self, path, env=env, **options)
 
     @property
     def converged(self) -> bool:
