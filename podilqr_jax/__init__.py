@@ -5,6 +5,10 @@ The least-squares fit differences rollouts that deviate from the nominal by
 ~sigma; in float32 a perturbation of 1e-4 on an angle of ~3 keeps about three
 significant digits of dz, too few for the fit (docs/algorithm.md measures it).
 Set ``PODILQR_X64=0`` before importing to keep JAX's float32 default.
+
+Compilation: importing the package also turns on JAX's persistent compilation
+cache in ``~/.cache/podilqr_jax/jax`` (``PODILQR_CACHE_DIR`` moves it,
+``PODILQR_CACHE=0`` switches it off; see ``cache``).
 """
 
 import contextlib as _contextlib
@@ -16,14 +20,21 @@ import jax as _jax
 if _os.environ.get("PODILQR_X64", "1") != "0":
     _jax.config.update("jax_enable_x64", True)
 
+# Sets up JAX's persistent compilation cache on import (before anything compiles).
+from . import cache as _cache  # noqa: F401
+
 # MJX prints a note to stdout when its optional `warp` backend is absent; keep
 # stdout clean for the CLI's output.
 with _contextlib.redirect_stdout(_io.StringIO()):
     from mujoco import mjx as _mjx  # noqa: F401
 
+from .animate import Animation as Animation
+from .animate import animate as animate
 from .backward import BackwardResult as BackwardResult
 from .backward import QuadraticCost as QuadraticCost
 from .backward import backward_pass as backward_pass
+from .cache import CacheInfo as CacheInfo
+from .cache import cache_info as cache_info
 from .config import VARIANTS as VARIANTS
 from .config import SolverConfig as SolverConfig
 from .env import Env as Env
@@ -49,6 +60,7 @@ from .kalman import estimator_policy as estimator_policy
 from .kalman import identify_about_nominal as identify_about_nominal
 from .model_based import linearise as linearise
 from .noise import NoiseModel as NoiseModel
+from .package_files import resolve_model_path as resolve_model_path
 from .policy import FeedbackPolicy as FeedbackPolicy
 from .policy import PolicyState as PolicyState
 from .replan import replan_episodes as replan_episodes
@@ -71,7 +83,9 @@ from .tasks import make_task as make_task
 __version__ = "0.1.0"
 
 __all__ = [
+    "Animation",
     "BackwardResult",
+    "CacheInfo",
     "ConfigError",
     "Env",
     "EnvData",
@@ -98,7 +112,9 @@ __all__ = [
     "Trajectory",
     "TrueCosts",
     "VARIANTS",
+    "animate",
     "backward_pass",
+    "cache_info",
     "companion",
     "default_config",
     "estimator_policy",
@@ -111,6 +127,7 @@ __all__ = [
     "load_result",
     "make_task",
     "replan_episodes",
+    "resolve_model_path",
     "run_episodes",
     "rollout_batch",
     "simulate",

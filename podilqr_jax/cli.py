@@ -4,13 +4,16 @@
                      [--noise paper|none|initial=S0,process=SW,measurement=SV]
                      [--set key=value ...] [--out result.json] [--no-plots]
                      [--checkpoint DIR [--every N]] [--resume DIR]
-  podilqr reproduce [--quick] [--seeds N] [--systems pendulum,cartpole]
+  podilqr reproduce [--quick | --tiny] [--seeds N] [--systems pendulum,cartpole]
                     [--no-sweep] [--out DIR]
   podilqr evaluate RESULT [--noise 0,0.1,0.2,0.3,0.5] [--quick] [--task TASK]
                     [--episodes N] [--system-noise SPEC] [--no-replan]
                     [--no-estimator] [--replan-every N] [--u-limit X]
                     [--model-error X] [--seed S] [--out DIR]
-  podilqr bench [--quick] [--tasks pendulum-full,cartpole-full] [--out DIR]
+  podilqr animate RESULT --out motion.gif [--episodes N --noise EPS] [--open-loop]
+                    [--compare OTHER | --vs-open-loop] [--task TASK] [--fps F]
+                    [--width W] [--height H] [--hold S] [--renderer R] [--seed S]
+  podilqr bench [--quick | --tiny] [--tasks pendulum-full,cartpole-full] [--sections ...] [--out DIR]
   podilqr tasks
 
 TASK is a bundled task name (``podilqr tasks`` lists them) or a task file
@@ -87,11 +90,13 @@ def _parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="continue from the checkpoint in DIR (same task and settings; --set max_iterations may be raised)",
     )
-    p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
+    p.add_argument("--no-plots", action="store_true", help="do not write PNG plots or the motion GIF")
     p.add_argument("--quiet", action="store_true", help="no live progress")
     p.set_defaults(func=_cmd_solve)
     r = sub.add_parser("reproduce", help="reproduce the paper's noise study (Fig. 2) and a sigma sweep")
-    r.add_argument("--quick", action="store_true", help="2 seeds, shorter runs, 3-point sweep (minutes on a CPU)")
+    size = r.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="2 seeds, shorter runs, 3-point sweep (minutes on a CPU)")
+    size.add_argument("--tiny", action="store_true", help="1 seed, 2 iterations, horizon 8: a smoke run")
     r.add_argument("--seeds", type=int, default=None, help="seeds per variant (default 5, quick 2)")
     r.add_argument("--systems", default="pendulum,cartpole", help="comma-separated: pendulum, cartpole")
     r.add_argument("--no-sweep", action="store_true", help="skip the sigma sweep")
@@ -136,10 +141,40 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--seed", type=int, default=None, help="PRNG seed of the episodes' noise (default 0)")
     e.add_argument("--out", default="runs/evaluate", help="output folder (evaluate.json, evaluate.png, table.md)")
     e.set_defaults(func=_cmd_evaluate)
+    a = sub.add_parser("animate", help="the motion of a solve as a GIF/MP4 (noisy episodes, side by side)")
+    a.add_argument("result", help="a result JSON written by `podilqr solve --out`")
+    a.add_argument("--out", default="motion.gif", help="the animation: .gif, or .mp4 where ffmpeg is installed")
+    a.add_argument("--episodes", type=int, default=0, help="overlay N noisy closed-loop episodes of the policy")
+    a.add_argument(
+        "--noise",
+        type=float,
+        default=0.1,
+        metavar="EPS",
+        help="the episodes' noise level, as `podilqr evaluate`'s: actuator noise std EPS x max|u| (default 0.1)",
+    )
+    a.add_argument("--open-loop", action="store_true", help="the episodes replay the nominal controls alone")
+    a.add_argument("--seed", type=int, default=0, help="PRNG seed of the episodes' noise (default 0)")
+    a.add_argument("--compare", default=None, metavar="OTHER", help="a second result of the task, drawn beside")
+    a.add_argument(
+        "--vs-open-loop",
+        action="store_true",
+        help="draw beside it the same noisy episodes run open loop (the nominal controls alone; needs --episodes)",
+    )
+    a.add_argument("--task", default=None, help="the task the result was solved on (default: its recorded name)")
+    a.add_argument("--fps", type=float, default=None, help="highest frame rate (default 25); frames keep real time")
+    a.add_argument("--width", type=int, default=320, help="pixels per panel (default 320)")
+    a.add_argument("--height", type=int, default=240, help="pixels (default 240)")
+    a.add_argument("--hold", type=float, default=1.0, help="seconds the last frame is held (default 1)")
+    a.add_argument(
+        "--renderer",
+        choices=("auto", "mujoco", "matplotlib"),
+        default="auto",
+        help="auto: MuJoCo's renderer when an OpenGL backend (MUJOCO_GL) loads, else a matplotlib drawing",
+    )
+    a.set_defaults(func=_cmd_animate)
     sub.add_parser(
         "bench",
-        help="benchmark: n_s x n_avg grid, phases, native/serial baselines, memory, devices "
-        "(`podilqr bench --help`; needs the source tree's benchmarks/)",
+        help="benchmark: n_s x n_avg grid, phases, native/serial baselines, memory, devices (`podilqr bench --help`)",
         add_help=False,
     )
     t = sub.add_parser("tasks", help="list the bundled tasks")
@@ -229,21 +264,10 @@ def _parse_noise(text: str):
 
 
 def _cmd_bench(argv: list[str]) -> int:
-    """Run benchmarks/bench.py of the source tree (the benchmarks are not installed)."""
-    import importlib.util
+    """``podilqr bench``: the benchmark suite installed with the package (podilqr_jax/bench)."""
+    from .bench import main as bench_main
 
-    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks", "bench.py")
-    if not os.path.exists(path):
-        _fail(
-            f"`podilqr bench` runs benchmarks/bench.py from the source tree, which is not at {path}: "
-            "clone the repository and install it with `pip install -e .`."
-        )
-        return EXIT_INPUT_ERROR
-    spec = importlib.util.spec_from_file_location("podilqr_bench", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module.main(argv)
+    return bench_main(argv)
 
 
 def _cmd_tasks(args: argparse.Namespace) -> int:
@@ -258,7 +282,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     from .errors import ConfigError
     from .reproduce import SYSTEMS, StudySettings, format_table, run_study
 
-    settings = StudySettings.quick() if args.quick else StudySettings()
+    settings = StudySettings.quick() if args.quick else StudySettings.tiny() if args.tiny else StudySettings()
     systems = tuple(s.strip() for s in args.systems.split(",") if s.strip())
     unknown = [s for s in systems if s not in SYSTEMS]
     if unknown or not systems:
@@ -338,12 +362,57 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_animate(args: argparse.Namespace) -> int:
+    from .animate import animate, task_env
+    from .errors import ConfigError
+    from .result import load_result
+
+    result = load_result(args.result)
+    if args.compare and args.vs_open_loop:
+        raise ConfigError("Give either --compare OTHER or --vs-open-loop, not both: there are two panels.")
+    other = load_result(args.compare) if args.compare else "open_loop" if args.vs_open_loop else None
+    env = task_env(result, args.task)
+    _check_writable(args.out)
+    info = animate(
+        result,
+        args.out,
+        env=env,
+        episodes=args.episodes,
+        noise=args.noise,
+        seed=args.seed,
+        open_loop=args.open_loop,
+        compare=other,
+        compare_env=env if args.task and args.compare else None,
+        width=args.width,
+        height=args.height,
+        fps=args.fps,
+        hold=args.hold,
+        renderer=args.renderer,
+    )
+    print(
+        f"wrote {info.path}: {info.frames} frames of {info.frame_s:g} s, {info.size[0]}x{info.size[1]} "
+        f"({info.renderer})",
+        file=sys.stderr,
+    )
+    return 0
+
+
 def _cmd_solve(args: argparse.Namespace) -> int:
+    from .interrupts import deferred_interrupts
+
+    # A Ctrl-C anywhere in here, solves or writing, ends with a complete result file.
+    with deferred_interrupts as interrupts:
+        return _solve_and_write(args, interrupts)
+
+
+def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
     import podilqr_jax as pj
 
     sets = _parse_sets(args.set)
     _check_writable(args.out)
     env = load_env(args.task, args.noise)
+    for note in env.model_notes:  # options MJX refuses that do not change the dynamics (env.mjx_model_of)
+        print(f"note: {note}", file=sys.stderr)
     horizon = sets.pop("horizon", None)
     if horizon is not None:
         env = env.replace(horizon=horizon)
@@ -361,7 +430,7 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         with _Progress(method, env.name, cfg.max_iterations, quiet=args.quiet) as progress:
             results.append(fn(env, cfg, callback=progress.update, **options))
         print(results[-1].summary(), file=sys.stderr)
-        if results[-1].status == pj.Status.INTERRUPTED:
+        if results[-1].status == pj.Status.INTERRUPTED or interrupts.requested:
             break
 
     main_result = results[0]
@@ -388,11 +457,24 @@ def _cmd_solve(args: argparse.Namespace) -> int:
             plot_convergence(results, stem + "_cost.png"),
             plot_trajectory(main_result, stem + "_trajectory.png"),
         ]
-        print("wrote " + ", ".join(paths), file=sys.stderr)
-    if any(r.status == pj.Status.INTERRUPTED for r in results):
+        paths.append(_solve_animation(main_result, env, stem + "_motion.gif"))
+        print("wrote " + ", ".join(p for p in paths if p), file=sys.stderr)
+    if interrupts.requested or any(r.status == pj.Status.INTERRUPTED for r in results):
         print(f"interrupted: {args.out} holds the result after the last completed iteration", file=sys.stderr)
         return 130
     return 1 if main_result.status in (pj.Status.NONFINITE, pj.Status.NO_RESPONSE) else 0
+
+
+def _solve_animation(result, env, path: str) -> str:
+    """The solve's motion GIF beside its plots (small frames); a note, not a failure, if it cannot be drawn."""
+    from .animate import animate
+    from .errors import PodIlqrError
+
+    try:
+        return animate(result, path, env=env).path
+    except PodIlqrError as exc:
+        print(f"note: no animation: {exc}", file=sys.stderr)
+        return ""
 
 
 class _Progress:

@@ -33,13 +33,14 @@ from .backward import QuadraticCost, Regularisation, backward_pass
 from .checkpoint import Nominal, SolverState, fingerprint, load_checkpoint, save_checkpoint
 from .compile_watch import CompileWatch
 from .config import SolverConfig
-from .env import Env
+from .env import Env, mjx_model_of
 from .errors import ConfigError
 from .estimators import fit_information_model_iv
 from .evaluation import true_costs
 from .info_state import info_dim, n_regressors, observation_selector
+from .interrupts import deferred_interrupts
 from .line_search import line_search
-from .model_based import linearise
+from .model_based import linearise, nonfinite_hint
 from .result import IterationInfo, Result, Status
 from .rollout import (
     Policy,
@@ -97,13 +98,14 @@ def solve(
 
     Returns:
       A :class:`Result`; its ``status`` says why the solve stopped. Ctrl-C
-      (KeyboardInterrupt) during the iterations returns the result after the
-      last completed iteration with status ``interrupted``.
+      (SIGINT, from the main thread) stops the solve after the iteration it
+      lands in (a second Ctrl-C at once) and returns the result of the last
+      completed iteration with status ``interrupted`` (see ``interrupts``).
     """
     cfg = default_config(env) if cfg is None else cfg
     q = cfg.validate(env, data_based=True)
     run = _run_options(checkpoint, checkpoint_every, resume)
-    dims, data = env.dims, _on_device(env.data)
+    dims, data = env.dims, _on_device(_in_impl(env, cfg.impl))
     nZ = info_dim(dims.nz, dims.nu, q)
     sigma = _on_device(cfg.sigma)
     rcond = _on_device(cfg.rcond)
@@ -176,10 +178,19 @@ def solve_model_based(
         t0 = time.perf_counter()
         model = linearise(dims, data, nominal.x_bar, nominal.u_bar)
         finite = bool(jnp.all(jnp.isfinite(model.A)) & jnp.all(jnp.isfinite(model.B)))
-        stop = None if finite else (Status.NONFINITE, "the exact linearisation is not finite")
+        why = "the exact linearisation is not finite" + nonfinite_hint(env.mj_model)
+        stop = None if finite else (Status.NONFINITE, why)
         return model, stop, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}
 
     return _iterate("model-based", env, dims, data, cfg, 1, identify, u_init, callback, False, 1, run)
+
+
+def _in_impl(env: Env, impl: str):
+    """The task's data with its MJX model in implementation ``impl`` (``SolverConfig.impl``)."""
+    if impl == "jax":
+        return env.data
+    model, _ = mjx_model_of(env.mj_model, env.name, impl=impl)
+    return env.data._replace(model=model)
 
 
 def _policy(nominal: Nominal, K) -> Policy:
@@ -202,6 +213,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
     # is a fresh measurement of the current policy (see line_search).
     alphas = _on_device(np.append(steps, 0.0) if noisy else steps)
     ls_rollouts = int(alphas.shape[0]) * n_fwd
+    ls_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1)
+    ls_chunk = None if ls_chunk >= ls_rollouts else ls_chunk  # one compile for every budget that fits
     accept_ratio = _on_device(cfg.accept_ratio)
     zero_k = _on_device(np.zeros((dims.horizon, dims.nu)))
     no_change = _on_device(0.0)
@@ -214,7 +227,7 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
         t0 = time.perf_counter()
         st.ls_key, sub = jax.random.split(st.ls_key)
         ls = line_search(
-            dims, q, data, policy, k, alphas, _on_device(cost0), dV1, dV2, accept_ratio, sub, n_fwd=n_fwd, noisy=noisy
+            dims, q, data, policy, k, alphas, _on_device(cost0), dV1, dV2, accept_ratio, sub, n_fwd, noisy, ls_chunk
         )
         accepted = bool(ls.accepted)
         st.diverged_candidates += int(ls.n_diverged)
@@ -335,7 +348,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
     if noisy:
         message += " (under noise a solve runs to max_iterations; see true_cost_history)"
     first_compiles = 0
-    with total_watch:
+    interrupted = "Ctrl-C; the result is the nominal and gains of the last completed iteration"
+    with total_watch, deferred_interrupts as interrupts:
         if run.resume is not None:
             st = load_checkpoint(run.resume, print_, _on_device)
         else:
@@ -368,6 +382,11 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
         else:
             try:
                 for iteration in range(st.iteration + 1, cfg.max_iterations + 1):
+                    if interrupts.requested:  # Ctrl-C during the last iteration (or before the first)
+                        if run.checkpoint is not None:
+                            save_checkpoint(run.checkpoint, st, print_)
+                        status, message = Status.INTERRUPTED, interrupted
+                        break
                     t_iter = time.perf_counter()
                     with CompileWatch() as watch:
                         stop, note, accepted, iter_rollouts = one_iteration(st)
@@ -388,8 +407,7 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                 st = safe.restored()
                 if run.checkpoint is not None:  # the last completed iteration: resumable as is
                     save_checkpoint(run.checkpoint, st, print_)
-                status = Status.INTERRUPTED
-                message = "Ctrl-C; the result is the nominal and gains of the last completed iteration"
+                status, message = Status.INTERRUPTED, interrupted
 
     wall = time.perf_counter() - t_start
     # Everything outside the jitted stages. Stage times include their own
@@ -469,7 +487,7 @@ def _result(method, env, dims, cfg, q, st: SolverState, status, message, noisy, 
         diverged_rollouts=st.diverged_rollouts,
         diverged_candidates=st.diverged_candidates,
         mu_retries=st.mu_retries,
-        warnings=warnings,
+        warnings=list(env.model_notes) + warnings,  # options switched off for MJX (env.mjx_model_of)
         control_limits=np.stack([env.data.u_low, env.data.u_high], axis=1).tolist() if env.limited else [],
     )
 
@@ -498,9 +516,15 @@ def _on_device(x):
     Driver-made arrays must be committed like the jitted stages' outputs they
     alternate with: JAX keys its compilation cache on whether an argument is
     committed, and mixing the two compiles every stage twice.
+
+    With several processes (``jax.distributed``) every process holds the same
+    values (the same task, settings and seed, or a replicated stage output):
+    each places its own host copy on its devices, and nothing crosses hosts.
     """
     if isinstance(x, (int, float, np.ndarray, np.generic)):
         x = jnp.asarray(x, dtype=jnp.result_type(float))
+    if jax.process_count() > 1:
+        x = jax.tree_util.tree_map(lambda a: np.asarray(a) if isinstance(a, jax.Array) else a, x)
     return jax.device_put(x, replicated())
 
 
