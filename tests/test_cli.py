@@ -23,6 +23,9 @@ def test_solve_writes_json_and_plots(tmp_path, capsys):
     payload = json.loads(out.read_text())
     assert REQUIRED_KEYS <= set(payload)
     assert len(payload["controls"]) == 10
+    umask = os.umask(0)
+    os.umask(umask)
+    assert os.stat(out).st_mode & 0o777 == 0o666 & ~umask  # as open() would make it, not mkstemp's 0600
     assert payload["iterations"] == 4 and payload["cost_history"][-1] < payload["cost_history"][0]
     assert (tmp_path / "sub" / "result_cost.png").stat().st_size > 0
     assert (tmp_path / "sub" / "result_trajectory.png").stat().st_size > 0

@@ -24,6 +24,8 @@ import tempfile
 import time
 from typing import Any, Optional, Sequence
 
+from .report import emit
+
 MODES = ("off", "cold", "warm")
 
 
@@ -119,12 +121,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--out", default=None, help="write the report as JSON here")
     args = parser.parse_args(argv)
     report = cold_warm(args.task, args.set)
-    text = json.dumps(report, indent=2)
-    if args.out:
-        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-        with open(args.out, "w") as f:
-            f.write(text + "\n")
-    print(text)
+    emit(report, args.out)
     return 0
 
 

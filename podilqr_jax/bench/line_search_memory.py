@@ -23,6 +23,8 @@ import sys
 import time
 from typing import Any, Optional, Sequence
 
+from .report import emit
+
 
 def _peak_mb() -> float:
     with open("/proc/self/status") as f:
@@ -120,12 +122,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 0
     chunks = [None if c.strip() == "none" else int(c) for c in args.chunks.split(",") if c.strip()]
     report = peak_memory_vs_chunk(args.task, args.n_forward, chunks)
-    text = json.dumps(report, indent=2)
-    if args.out:
-        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-        with open(args.out, "w") as f:
-            f.write(text + "\n")
-    print(text)
+    emit(report, args.out)
     return 0
 
 
