@@ -18,7 +18,7 @@ with
   (``episodes.run_episodes``) as faded copies behind the nominal, under the
   noise ``podilqr evaluate`` applies at level ``noise``: actuator noise of
   standard deviation ``noise`` x max|u_bar| per actuator plus measurement
-  noise (``evaluate._levels``); the frame shows their mean cost so far.
+  noise (``evaluate.noise_at_level``); the frame shows their mean cost so far.
 
 ``compare=OTHER`` draws a second result of the same task beside the first,
 through the same camera. Frames come from :mod:`podilqr_jax.render`
@@ -172,7 +172,7 @@ def noisy_episodes(result, env, n: int, noise: float, seed: int = 0, open_loop: 
     import jax.numpy as jnp
 
     from .episodes import run_episodes
-    from .evaluate import EvaluateSettings, _levels, actuator_limits
+    from .evaluate import EvaluateSettings, actuator_limits, noise_at_level
     from .noise import NoiseModel
 
     _check_episodes(n, minimum=1)
@@ -192,7 +192,7 @@ def noisy_episodes(result, env, n: int, noise: float, seed: int = 0, open_loop: 
             f"The result measures {policy.nz} number(s) per step but the task {env.name!r} observes "
             f"{measured.shape[1]}: pass the task the result was solved on (--task)."
         )
-    levels = _levels(clean, settings, float(noise), u_max, np.ptp(measured, axis=0), limits)
+    levels = noise_at_level(clean, settings, float(noise), u_max, np.ptp(measured, axis=0), limits)
     key = jax.random.PRNGKey(int(seed))
     return run_episodes(clean.dims, clean.data, policy, key, levels, int(n))
 

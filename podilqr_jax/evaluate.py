@@ -117,7 +117,10 @@ def actuator_limits(env: Env, u_max: np.ndarray, u_limit: float) -> tuple[np.nda
     return np.where(np.isfinite(low), low, -bound), np.where(np.isfinite(high), high, bound)
 
 
-def _levels(env: Env, settings, eps, u_max, channel_range, limits) -> EpisodeNoise:
+def noise_at_level(env: Env, settings, eps, u_max, channel_range, limits) -> EpisodeNoise:
+    """The episodes' noise at level ``eps``: actuator noise ``eps x u_max``,
+    measurement noise ``eps x measurement_ratio x channel_range`` (with the
+    settings' system noise added), commands clipped to ``limits``."""
     sys = settings.system_noise
     nx = env.dims.nx
     meas = eps * settings.measurement_ratio * channel_range
@@ -209,7 +212,7 @@ def evaluate(
     replan_compiles = 0
     for i, eps in enumerate(settings.levels):
         level_key = jax.random.fold_in(key, i)
-        obs_levels = _levels(clean, settings, eps, u_max, obs_range, limits)
+        obs_levels = noise_at_level(clean, settings, eps, u_max, obs_range, limits)
         runs: list[tuple[str, FeedbackPolicy, EpisodeNoise]] = [
             ("open_loop", policy.open_loop(), obs_levels),
             ("closed_loop", policy, obs_levels),
@@ -224,7 +227,7 @@ def evaluate(
             )
             runs.append(("closed_loop_estimator", estimator_policy(clean, policy, model, design), obs_levels))
         if settings.model_based:
-            runs.append(("model_based", mb_policy, _levels(clean, settings, eps, u_max, state_range, limits)))
+            runs.append(("model_based", mb_policy, noise_at_level(clean, settings, eps, u_max, state_range, limits)))
         for name, pol, lv in runs:
             t0 = time.perf_counter()
             ep = run_episodes(clean.dims, clean.data, pol, level_key, lv, settings.episodes)
