@@ -36,6 +36,7 @@ import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
 
 from .cost import running_weights
+from .stages import stage
 from .sysid import LinearModel
 
 
@@ -177,7 +178,7 @@ def riccati(model: LinearModel, Z_bar, u_bar, cost: QuadraticCost, mu) -> Backwa
     return BackwardResult(k, K, dV[0], dV[1], g, jnp.asarray(mu, Z_bar.dtype), ok)
 
 
-@jax.jit
+@stage(outputs=(BackwardResult,))
 def backward_pass(model: LinearModel, Z_bar, u_bar, cost: QuadraticCost, mu, reg: Regularisation) -> BackwardResult:
     """Backward sweep at ``mu``, raising mu by ``reg.factor`` until it succeeds.
 

@@ -74,6 +74,8 @@ class SolverState:
     diverged_rollouts: int = 0  # sysid rollouts left out of the fit (non-finite)
     diverged_candidates: int = 0  # line-search candidates rejected as non-finite
     mu_retries: int = 0  # backward passes redone with a larger mu after a rejected step
+    reidentified: int = 0  # re-identifications since the last accepted step (sets the sigma scale)
+    reidentifications: int = 0  # in all
     stopped: Optional[list] = None  # [status, message] once a stopping rule fired
     cost_history: list = dataclasses.field(default_factory=list)
     true_history: list = dataclasses.field(default_factory=list)
@@ -93,6 +95,8 @@ class SolverState:
         "diverged_rollouts",
         "diverged_candidates",
         "mu_retries",
+        "reidentified",
+        "reidentifications",
     )
     _HISTORIES = ("cost_history", "true_history", "open_history", "alpha_history", "mu_history", "grad_history")
 

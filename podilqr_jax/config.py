@@ -82,6 +82,11 @@ class SolverConfig:
         fit this budget (``rollout.bytes_per_rollout`` estimates a rollout's
         share); a batch that fits runs at once.
       rollout_chunk: rollouts per chunk (of both batches), overriding the budget.
+      reidentify: re-identifications a noiseless data-based solve makes when no
+        step lowers the cost and mu has passed mu_max, before it stops
+        ``line_search_failed``: each one draws fresh perturbations at another
+        scale (``reidentify_scale``: sigma x 0.1, then x 10, x 0.01, x 100, ...)
+        and starts mu afresh; an accepted step returns to sigma.
       impl: MJX implementation of the solve's rollouts, one of ``IMPLS``
         (``jax`` or ``warp``). The model-based reference differentiates
         through MJX and always runs ``jax``.
@@ -109,6 +114,7 @@ class SolverConfig:
     memory_budget_mb: float = 2048.0
     rollout_chunk: Optional[int] = None
     impl: str = "jax"
+    reidentify: int = 2
 
     def replace(self, **changes: Any) -> "SolverConfig":
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
@@ -173,6 +179,7 @@ class SolverConfig:
         _int("max_iterations", self.max_iterations, 1)
         _int("n_alphas", self.n_alphas, 1)
         _int("seed", self.seed, 0)
+        _int("reidentify", self.reidentify, 0)
         if self.q is not None:
             _int("q", self.q, 1)
         for name in ("sigma", "mu_max", "mu_factor"):
@@ -253,3 +260,14 @@ def _positive(name: str, value: Any) -> None:
 def _nonnegative(name: str, value: Any) -> None:
     if _finite_number(name, value) < 0:
         raise ConfigError(f"`{name}` must be >= 0; got {value!r}.")
+
+
+def reidentify_scale(attempt: int) -> float:
+    """The factor on sigma of re-identification ``attempt`` (1, 2, ...): 0.1, 10, 0.01, 100, ...
+    (0 is the configured sigma). Smaller first: a step that the model promised
+    and the system refused is most often the curvature a large perturbation
+    read as slope; larger next, for a fit lost in round-off or noise."""
+    if attempt <= 0:
+        return 1.0
+    decades = (attempt + 1) // 2
+    return 10.0 ** (-decades if attempt % 2 else decades)

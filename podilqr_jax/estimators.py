@@ -48,12 +48,11 @@ Shapes: z [n, T+1, nz], u [n, T, nu] (applied), du [n, T, nu] (injected).
 
 from __future__ import annotations
 
-import functools
 import math
 
-import jax
 import jax.numpy as jnp
 
+from .stages import stage
 from .sysid import FitReport, LinearModel, fit_each_step, least_squares, regression_data
 
 ESTIMATORS = ("ols", "iv")
@@ -102,7 +101,7 @@ def two_stage_least_squares(X: jnp.ndarray, Y: jnp.ndarray, W: jnp.ndarray, rcon
     return theta, rank, Y - X @ theta
 
 
-@functools.partial(jax.jit, static_argnames=("q",))
+@stage(static_argnames=("q",), outputs=(LinearModel, FitReport))
 def fit_information_model_iv(z, u, du, z_bar, u_bar, q: int, rcond) -> tuple[LinearModel, FitReport]:
     """The ARMA fit of ``sysid`` by instrumental variables (a ``lax.scan`` over time)."""
     X, Y = regression_data(z, u, z_bar, u_bar, q)

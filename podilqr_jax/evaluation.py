@@ -19,7 +19,6 @@ the open-loop replay cannot (see docs/noise.md).
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import jax
@@ -28,6 +27,7 @@ import jax.numpy as jnp
 from .cost import batch_costs
 from .env import EnvData, EnvDims
 from .rollout import Policy, simulate
+from .stages import stage
 
 
 class TrueCosts(NamedTuple):
@@ -35,7 +35,7 @@ class TrueCosts(NamedTuple):
     open_loop: jnp.ndarray  # the nominal controls replayed open loop
 
 
-@functools.partial(jax.jit, static_argnames=("dims", "q"))
+@stage(static_argnames=("dims", "q"), outputs=(TrueCosts,))
 def true_costs(dims: EnvDims, q: int, data: EnvData, policy: Policy) -> TrueCosts:
     """Closed-loop and open-loop cost of ``policy`` on the noiseless system."""
     zero = jnp.zeros((dims.horizon, dims.nu), policy.u_bar.dtype)

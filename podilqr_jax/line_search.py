@@ -30,7 +30,6 @@ result to round-off.
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple, Optional
 
 import jax
@@ -41,6 +40,7 @@ from .env import EnvData, EnvDims
 from .info_state import info_states
 from .noise import Noise, sample_noise
 from .rollout import Policy, Trajectory, average_repeats, shard_batch, simulate
+from .stages import stage
 
 
 class LineSearchResult(NamedTuple):
@@ -54,7 +54,7 @@ class LineSearchResult(NamedTuple):
     n_diverged: jnp.ndarray  # int: candidates with a non-finite rollout or cost (never accepted)
 
 
-@functools.partial(jax.jit, static_argnames=("dims", "q", "n_fwd", "noisy", "chunk"))
+@stage(static_argnames=("dims", "q", "n_fwd", "noisy", "chunk"), outputs=(LineSearchResult, Trajectory))
 def line_search(
     dims: EnvDims,
     q: int,

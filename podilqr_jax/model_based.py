@@ -11,8 +11,6 @@ Shapes: x_bar [T+1, nx], u_bar [T, nu]; A [T, nx, nx], B [T, nx, nu].
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -20,10 +18,11 @@ from mujoco import mjx
 
 from .env import EnvData, EnvDims
 from .rollout import physics_step, state_of, with_state
+from .stages import stage
 from .sysid import LinearModel
 
 
-@functools.partial(jax.jit, static_argnames=("dims",))
+@stage(static_argnames=("dims",), outputs=(LinearModel,))
 def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar) -> LinearModel:
     """(A_t, B_t) = Jacobians of the control-step map along (x_bar, u_bar)."""
     d0 = mjx.make_data(data.model)

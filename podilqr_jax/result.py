@@ -99,6 +99,7 @@ class Result:
     diverged_rollouts: int = 0  # sysid rollouts left out of the fit as non-finite
     diverged_candidates: int = 0  # line-search candidates rejected as non-finite
     mu_retries: int = 0  # backward passes redone with a larger mu after a rejected step
+    reidentifications: int = 0  # fresh identifications at another sigma after no step lowered the cost
     warnings: list[str] = dataclasses.field(default_factory=list)  # also the options switched off for MJX
     control_limits: list = dataclasses.field(default_factory=list)  # [nu][low, high] ctrlrange; [] when unlimited
 
@@ -172,6 +173,7 @@ class Result:
             "diverged_rollouts": self.diverged_rollouts,
             "diverged_candidates": self.diverged_candidates,
             "mu_retries": self.mu_retries,
+            "reidentifications": self.reidentifications,
             "warnings": list(self.warnings),
             "control_limits": [[float(lo), float(hi)] for lo, hi in self.control_limits],
             "alpha_history": self.alpha_history,

@@ -46,9 +46,11 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
+from . import rk4
 from .env import EnvData, EnvDims
 from .info_state import initial_info_state, shift
 from .noise import Noise, sample_noise
+from .stages import stage
 
 
 class Policy(NamedTuple):
@@ -80,10 +82,15 @@ def physics_step(dims: EnvDims, model, d, u: jnp.ndarray):
     (this one and the rollouts' scans) keep one carry type: with x64 on, MJX's
     tendon stage writes its wrap indices (``ten_wrapadr``, ``ten_wrapnum``,
     ``wrap_obj``) as int64 where ``mjx.make_data`` made them int32.
+
+    An RK4 model steps through ``rk4.step`` (MuJoCo's RK4 with one compiled
+    copy of the forward dynamics instead of ``mjx.step``'s four), anything
+    else through ``mjx.step``.
     """
+    mj_step = rk4.step if rk4.applies(model) else mjx.step
 
     def one_step(_, dd):
-        return jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), mjx.step(model, dd), dd)
+        return jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), mj_step(model, dd), dd)
 
     return jax.lax.fori_loop(0, dims.substeps, one_step, d.replace(ctrl=u))
 
@@ -260,7 +267,7 @@ def injected_perturbations(key: jax.Array, sigma, n_s: int, horizon: int, nu: in
     return sigma * jax.random.normal(key, (n_s, horizon, nu), dtype=dtype)
 
 
-@functools.partial(jax.jit, static_argnames=("dims", "q", "n_s", "n_avg", "noisy", "chunk"))
+@stage(static_argnames=("dims", "q", "n_s", "n_avg", "noisy", "chunk"), outputs=(Trajectory,))
 def perturbation_rollouts(
     dims: EnvDims,
     q: int,

@@ -32,7 +32,7 @@ import numpy as np
 from .backward import QuadraticCost, Regularisation, backward_pass
 from .checkpoint import Nominal, SolverState, fingerprint, load_checkpoint, save_checkpoint
 from .compile_watch import CompileWatch
-from .config import SolverConfig
+from .config import SolverConfig, reidentify_scale
 from .env import Env, mjx_model_of
 from .errors import ConfigError
 from .estimators import fit_information_model_iv
@@ -115,14 +115,17 @@ def solve(
     chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy))
     no_gains = _on_device(np.zeros((dims.horizon, dims.nu, nZ)))
 
-    def identify(key, nominal, gains):
+    def identify(key, nominal, gains, scale=1.0):
         t0 = time.perf_counter()
         policy = _policy(nominal, gains if feedback else no_gains)
-        traj = perturbation_rollouts(dims, q, cfg.n_s, data, policy, key, sigma, n_avg=n_avg, noisy=noisy, chunk=chunk)
+        sigma_t = sigma if scale == 1.0 else _on_device(cfg.sigma * scale)
+        traj = perturbation_rollouts(
+            dims, q, cfg.n_s, data, policy, key, sigma_t, n_avg=n_avg, noisy=noisy, chunk=chunk
+        )
         traj.z.block_until_ready()
         t1 = time.perf_counter()
         if cfg.estimator == "iv":
-            du = injected_perturbations(key, sigma, cfg.n_s, dims.horizon, dims.nu)
+            du = injected_perturbations(key, sigma_t, cfg.n_s, dims.horizon, dims.nu)
             model, report = fit_information_model_iv(traj.z, traj.u, du, nominal.z_bar, nominal.u_bar, q, rcond)
         else:
             model, report = fit_information_model(traj.z, traj.u, nominal.z_bar, nominal.u_bar, q, rcond)
@@ -140,7 +143,7 @@ def solve(
         elif float(jnp.max(report.target_rms)) == 0.0:
             stop = (
                 Status.NO_RESPONSE,
-                f"the sysid perturbations (sigma={cfg.sigma:g}) left every observation unchanged, "
+                f"the sysid perturbations (sigma={cfg.sigma * scale:g}) left every observation unchanged, "
                 "so the fit sees no dynamics: raise sigma (or use float64, see docs/algorithm.md)",
             )
         t2 = time.perf_counter()
@@ -174,7 +177,7 @@ def solve_model_based(
     view = env.full_state_view()
     dims, data = view.dims, _on_device(view.data)
 
-    def identify(key, nominal, gains):
+    def identify(key, nominal, gains, scale=1.0):
         t0 = time.perf_counter()
         model = linearise(dims, data, nominal.x_bar, nominal.u_bar)
         finite = bool(jnp.all(jnp.isfinite(model.A)) & jnp.all(jnp.isfinite(model.B)))
@@ -204,6 +207,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
     ``run`` the checkpoint/resume options."""
     t_start = time.perf_counter()
     nZ = info_dim(dims.nz, dims.nu, q)
+    # Only a data-based fit has something to re-draw; under noise a rejected step never stops the solve.
+    reidentify = cfg.reidentify if method == "pod-ilqr" and not noisy else 0
     selector = observation_selector(dims.nz, dims.nu, q)
     box = (data.u_low, data.u_high) if env.limited else (None, None)
     cost_model = QuadraticCost(selector, data.z_target, data.Q, data.QT, data.R, data.goal_step, *box)
@@ -251,7 +256,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
         nominal = st.nominal
         if st.model is None:
             st.key, sub = jax.random.split(st.key)
-            st.model, stop, iter_rollouts, n_bad, times = identify(sub, nominal, st.gains)
+            scale = reidentify_scale(st.reidentified)
+            st.model, stop, iter_rollouts, n_bad, times = identify(sub, nominal, st.gains, scale)
             st.rollouts += iter_rollouts
             for name, secs in times.items():
                 phase_s[name] += secs
@@ -298,7 +304,7 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
             st.nominal = Nominal.measured(ls)
             st.gains = back.K
             st.model = None
-            st.failures = st.streak = 0
+            st.failures = st.streak = st.reidentified = 0
             st.mu = max(st.mu / cfg.mu_factor, cfg.mu_min)
             if not noisy and decrease < cfg.rtol * abs(new_cost):
                 stop = (Status.CONVERGED, f"relative cost decrease below rtol={cfg.rtol:g}")
@@ -329,12 +335,18 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                         Status.CONVERGED,
                         f"no step lowers the cost and the predicted decrease {predicted:.3g} is below rtol x cost",
                     )
-                elif st.mu > cfg.mu_max:
-                    stop = (
-                        Status.LINE_SEARCH_FAILED,
-                        f"no step size lowered the cost after {st.streak} retries with growing "
-                        f"regularisation; mu passed mu_max={cfg.mu_max:g}",
+                elif st.mu > cfg.mu_max and st.reidentified < reidentify:
+                    # Before giving up: fresh perturbations at another scale, mu afresh.
+                    st.reidentified += 1
+                    st.reidentifications += 1
+                    st.model, st.failures = None, 0
+                    st.mu = max(cfg.mu_init, cfg.mu_min)
+                    note = (
+                        f"no step lowered the cost up to mu_max: re-identifying with fresh perturbations at "
+                        f"sigma = {cfg.sigma * reidentify_scale(st.reidentified):.3g}"
                     )
+                elif st.mu > cfg.mu_max:
+                    stop = (Status.LINE_SEARCH_FAILED, _failure_message(cfg, st, ls, nominal.cost, reidentify))
                 else:
                     st.mu_retries += 1
                     note = f"no step lowered the cost: mu raised to {st.mu:.3g}, retrying"
@@ -416,6 +428,21 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
     return _result(method, env, dims, cfg, q, st, status, message, noisy, phase_s, compiles, total_watch, wall)
 
 
+def _failure_message(cfg, st, ls, cost0: float, reidentify: int) -> str:
+    """Why the last line search failed, in the numbers it measured."""
+    expected = np.asarray(ls.expected)  # noiseless: candidate i is alpha = 2^-i
+    costs = np.where(np.isfinite(np.asarray(ls.costs)), np.asarray(ls.costs), np.inf)
+    i = int(np.argmin(costs))
+    tried = ", ".join(f"x {reidentify_scale(a):g}" for a in range(1, reidentify + 1))
+    again = f" and {reidentify} re-identifications (sigma {tried})" if reidentify else ""
+    change = f"changed the cost by {costs[i] - cost0:+.3g}" if np.isfinite(costs[i]) else "diverged"
+    return (
+        f"no step size lowered the cost after {st.streak} retries with growing regularisation{again}; "
+        f"mu passed mu_max={cfg.mu_max:g}. The last model predicted a decrease of {expected[0]:.3g} for the full "
+        f"step; the best candidate (alpha = {0.5**i:.3g}, predicted {expected[i]:.3g}) {change}"
+    )
+
+
 def _info(st: SolverState, iteration: int, accepted: bool, rollouts: int, wall: float, note: str) -> IterationInfo:
     return IterationInfo(
         iteration=iteration,
@@ -440,6 +467,11 @@ def _result(method, env, dims, cfg, q, st: SolverState, status, message, noisy, 
         warnings.append(f"{st.diverged_candidates} line-search candidates diverged and were rejected")
     if warnings:  # divergences belong in the message; retries are routine
         message += "; " + "; ".join(warnings)
+    if st.reidentifications:
+        warnings.append(
+            f"{st.reidentifications} times no step lowered the cost up to mu_max and the model was identified "
+            "afresh at another sigma"
+        )
     if st.mu_retries:
         warnings.append(
             f"{st.mu_retries} times no step lowered the cost and the backward pass was redone with a larger mu"
@@ -487,6 +519,7 @@ def _result(method, env, dims, cfg, q, st: SolverState, status, message, noisy, 
         diverged_rollouts=st.diverged_rollouts,
         diverged_candidates=st.diverged_candidates,
         mu_retries=st.mu_retries,
+        reidentifications=st.reidentifications,
         warnings=list(env.model_notes) + warnings,  # options switched off for MJX (env.mjx_model_of)
         control_limits=np.stack([env.data.u_low, env.data.u_high], axis=1).tolist() if env.limited else [],
     )

@@ -23,13 +23,13 @@ A [T, nZ, nZ], B [T, nZ, nu].
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from .info_state import companion, info_states
+from .stages import stage
 
 
 class LinearModel(NamedTuple):
@@ -106,7 +106,7 @@ def fit_each_step(z, u, inputs, q: int, solve) -> tuple[LinearModel, FitReport]:
     return LinearModel(A, B), FitReport(res, tgt, rank, all_finite, jnp.sum(~good))
 
 
-@functools.partial(jax.jit, static_argnames=("q",))
+@stage(static_argnames=("q",), outputs=(LinearModel, FitReport))
 def fit_information_model(z, u, z_bar, u_bar, q: int, rcond) -> tuple[LinearModel, FitReport]:
     """Fit Theta_t by least squares at every step (a ``lax.scan`` over time)."""
 

@@ -24,12 +24,13 @@ print(json.dumps({"info": info._asdict(), "dir": jax.config.jax_compilation_cach
 SOLVE = """
 import json
 import podilqr_jax as pj
+from podilqr_jax import stages
 from podilqr_jax.compile_watch import CompileWatch
 env = pj.make_task("pendulum-full", horizon=8)
 with CompileWatch() as watch:
     r = pj.solve(env, pj.default_config(env, max_iterations=2, n_s=8))
 print(json.dumps({"costs": r.cost_history, "K": r.K.ravel().tolist(), "compiles": watch.compiles,
-                  "loads": watch.cache_loads}))
+                  "loads": watch.cache_loads, "stages": stages.counts, "fallbacks": stages.fallbacks}))
 """
 
 
@@ -94,6 +95,21 @@ def test_warm_run_loads_from_disk_and_gives_the_same_result(tmp_path):
     assert cold["compiles"] > 5 and cold["loads"] < cold["compiles"] // 2
     assert warm["loads"] == warm["compiles"] == cold["compiles"]
     assert warm["costs"] == cold["costs"] and warm["K"] == cold["K"]  # bit for bit
+    # The traced stages too (podilqr_jax/stages.py): the cold run exports the
+    # sysid batch, the fit, the backward pass and the line search, the warm
+    # run reads all of them and traces none.
+    assert cold["fallbacks"] == {} and cold["stages"] == {"exported": 4, "loaded": 0}
+    assert warm["stages"] == {"exported": 0, "loaded": 4}
+    assert len(os.listdir(os.path.join(folder, "podilqr-stages"))) == 4
+
+
+def test_traced_stages_are_not_kept_without_the_package_cache(tmp_path):
+    folder = tmp_path / "off"
+    got = _run(SOLVE, tmp_path, PODILQR_CACHE_DIR=str(folder), PODILQR_CACHE="0")
+    assert got["stages"] == {"exported": 0, "loaded": 0} and not folder.exists()
+    theirs = tmp_path / "theirs"
+    got = _run(SOLVE, tmp_path, JAX_COMPILATION_CACHE_DIR=str(theirs))
+    assert got["stages"] == {"exported": 0, "loaded": 0} and not (theirs / "podilqr-stages").exists()
 
 
 def test_an_unwritable_folder_warns_and_runs_without_a_cache(tmp_path):

@@ -1,0 +1,216 @@
+"""The solver's jitted stages, kept on disk as traced programs: no tracing in a warm run.
+
+JAX's persistent compilation cache (``cache``) keeps compiled XLA programs,
+keyed on the lowered module, so a second run still traces and lowers every
+stage to find its key: for an MJX model that is most of a warm run's compile
+time (tracing ``mjx.step`` and its ``jax.jacfwd``, docs/performance.md).
+``stage`` jits a function like ``jax.jit(fun, static_argnames=...)`` and, when
+the package's cache is on, also keeps each traced stage on disk with
+``jax.export``:
+
+- the first call for a new key traces and exports the stage once, writes
+  the serialized program to ``<cache folder>/podilqr-stages/<key>``, and runs
+  it as every later run will: through ``Exported.call``, so a cold and a warm
+  run execute the same program and give the same numbers, bit for bit;
+- a later process with the same key reads and deserializes it (milliseconds)
+  and the compile that follows loads from the persistent cache.
+
+The key hashes everything the traced program depends on: the stage's name,
+the package's own source (any edit of the package starts afresh), the JAX,
+jaxlib and MuJoCo versions, x64, the backend, the static arguments, the
+pytree structure of the traced ones (with their static fields: MJX's model
+options, joint types and sizes) and their shapes and dtypes.
+
+Where a stage cannot go this way it is the plain jitted function: the
+package's cache off (``PODILQR_CACHE=0``) or a cache the user configured
+for JAX, a call from inside another trace (``vmap``, ``jit``), more than one
+device (an exported program fixes its shardings), or an export that JAX
+refuses (remembered per key; the reason is in ``fallbacks``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import importlib.metadata
+import inspect
+import os
+import sys
+import tempfile
+from typing import Any, Callable, Optional, Sequence
+
+import jax
+import numpy as np
+
+from . import cache
+
+FOLDER_NAME = "podilqr-stages"
+fallbacks: dict[str, str] = {}  # stage name -> why it runs as a plain jit (the last refusal)
+counts = {"exported": 0, "loaded": 0}  # stage programs traced and written / read from disk, this process
+
+
+def folder() -> Optional[str]:
+    """Where traced stages are kept, or None when they are not (the package's cache is off)."""
+    info = cache._state
+    if info["source"] != "podilqr" or not info["directory"]:
+        return None
+    return os.path.join(info["directory"], FOLDER_NAME)
+
+
+@functools.lru_cache(maxsize=1)
+def _versions() -> str:
+    """The package's source and the versions it runs on, as one digest."""
+    h = hashlib.sha256()
+    root = os.path.dirname(os.path.abspath(__file__))
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames.sort()
+        for name in sorted(filenames):
+            if name.endswith(".py"):
+                path = os.path.join(dirpath, name)
+                h.update(os.path.relpath(path, root).encode())
+                with open(path, "rb") as f:
+                    h.update(f.read())
+    for dist in ("jax", "jaxlib", "mujoco", "mujoco-mjx"):
+        try:
+            h.update(f"{dist}={importlib.metadata.version(dist)};".encode())
+        except importlib.metadata.PackageNotFoundError:
+            h.update(f"{dist}=none;".encode())
+    h.update(sys.version.encode())
+    return h.hexdigest()
+
+
+def _register_outputs(types: Sequence[type]) -> None:
+    """Let ``jax.export`` serialize the stage's NamedTuple outputs."""
+    for t in types:
+        name = f"podilqr_jax.{t.__module__.rsplit('.', 1)[-1]}.{t.__qualname__}"
+        try:
+            jax.export.register_namedtuple_serialization(t, serialized_name=name)
+        except ValueError:  # registered already (a module reloaded)
+            pass
+
+
+def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> Callable[[Callable], Callable]:
+    """Decorator: ``jax.jit(fun, static_argnames=...)``, with the traced program kept
+    on disk (module docstring). ``outputs``: the NamedTuple types in its result."""
+    static_argnames = tuple(static_argnames)
+    _register_outputs(outputs)
+
+    def wrap(fun: Callable) -> Callable:
+        jitted = jax.jit(fun, static_argnames=static_argnames)
+        signature = inspect.signature(fun)
+        name = f"{fun.__module__}.{fun.__qualname__}"
+        runners: dict[Any, Callable] = {}
+
+        @functools.wraps(fun)
+        def call(*args, **kwargs):
+            where = folder()
+            if where is None or jax.device_count() > 1:
+                return jitted(*args, **kwargs)
+            bound = signature.bind(*args, **kwargs)
+            bound.apply_defaults()
+            static = tuple((k, bound.arguments[k]) for k in static_argnames)
+            traced = {k: v for k, v in bound.arguments.items() if k not in static_argnames}
+            leaves, treedef = jax.tree_util.tree_flatten(traced)
+            if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+                return jitted(*args, **kwargs)
+            avals = tuple(jax.typeof(leaf) for leaf in leaves)
+            memo = (static, treedef, avals)
+            runner = runners.get(memo)
+            if runner is None:
+                runner = runners[memo] = _runner(name, fun, jitted, where, static, treedef, avals)
+            if runner is jitted:
+                return jitted(*args, **kwargs)
+            return runner(*leaves)
+
+        call.jitted = jitted  # the plain jitted function (``.lower`` for memory analysis and the like)
+        call.lower = jitted.lower
+        return call
+
+    return wrap
+
+
+def _canon(obj) -> str:
+    """A text that is equal for equal static values in any process (``repr``
+    can hold an address: MJX wraps its static numpy fields in a hashable
+    object without a ``repr`` of its own)."""
+    if isinstance(obj, np.ndarray):
+        data = np.ascontiguousarray(obj)
+        return f"array({data.dtype.str},{data.shape},{hashlib.sha256(data.tobytes()).hexdigest()})"
+    if isinstance(obj, (list, tuple)):
+        return f"{type(obj).__qualname__}(" + ",".join(_canon(o) for o in obj) + ")"
+    if isinstance(obj, dict):
+        items = sorted(obj.items(), key=lambda kv: repr(kv[0]))
+        return "{" + ",".join(f"{_canon(k)}:{_canon(v)}" for k, v in items) + "}"
+    if isinstance(obj, type):
+        return f"{obj.__module__}.{obj.__qualname__}"
+    if dataclasses.is_dataclass(obj):
+        fields = ",".join(f"{f.name}={_canon(getattr(obj, f.name))}" for f in dataclasses.fields(obj))
+        return f"{type(obj).__qualname__}({fields})"
+    if isinstance(getattr(obj, "array", None), np.ndarray):  # MJX's _NumPyArrayHashWrapper
+        return _canon(obj.array)
+    text = repr(obj)
+    if " at 0x" in text:
+        raise TypeError(f"no stable text for a static value of type {type(obj).__qualname__}")
+    return text
+
+
+def _canon_tree(treedef) -> str:
+    """``_canon`` of a pytree structure: node types, their static data, children."""
+    node = treedef.node_data()
+    if node is None:
+        return "*"
+    kind, aux = node
+    return f"{_canon(kind)}[{_canon(aux)}](" + ",".join(_canon_tree(c) for c in treedef.children()) + ")"
+
+
+def _key(name, static, treedef, avals) -> str:
+    h = hashlib.sha256()
+    with np.printoptions(threshold=sys.maxsize):  # static numpy fields in full, never elided
+        for part in (name, _versions(), _canon(static), _canon_tree(treedef), repr(avals)):
+            h.update(part.encode())
+            h.update(b"\0")
+    h.update(f"x64={jax.config.jax_enable_x64};{jax.default_backend()}".encode())
+    return h.hexdigest()
+
+
+def _runner(name, fun, jitted, where, static, treedef, avals) -> Callable:
+    """``jax.jit(exported.call)`` for this key, exporting it first where it is new."""
+    try:
+        key = _key(name, static, treedef, avals)
+        path = os.path.join(where, key)
+        exported = None
+        if os.path.isfile(path):
+            try:
+                with open(path, "rb") as f:
+                    exported = jax.export.deserialize(bytearray(f.read()))
+                counts["loaded"] += 1
+            except Exception:  # a partial or foreign file: export afresh
+                exported = None
+        if exported is None:
+            kwargs = dict(static)
+
+            def flat(*leaves):
+                return fun(**kwargs, **jax.tree_util.tree_unflatten(treedef, leaves))
+
+            specs = [jax.ShapeDtypeStruct(a.shape, a.dtype, weak_type=a.weak_type) for a in avals]
+            exported = jax.export.export(jax.jit(flat))(*specs)
+            _write(where, path, exported.serialize())
+            counts["exported"] += 1
+        return jax.jit(exported.call)
+    except Exception as exc:  # noqa: BLE001 - any refusal means: run it as a plain jit
+        fallbacks[name] = f"{type(exc).__name__}: {exc}"[:500]
+        return jitted
+
+
+def _write(where: str, path: str, blob: bytes) -> None:
+    os.makedirs(where, mode=0o700, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=where, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(blob)
+        os.replace(tmp, path)  # atomic: a concurrent reader sees the old file or the whole new one
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
