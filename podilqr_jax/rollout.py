@@ -75,7 +75,7 @@ def open_loop_policy(u_bar: jnp.ndarray, nZ: int) -> Policy:
     return Policy(u_bar, jnp.zeros((T, nZ), u_bar.dtype), jnp.zeros((T, nu, nZ), u_bar.dtype))
 
 
-def physics_step(dims: EnvDims, model, d, u: jnp.ndarray):
+def physics_step(dims: EnvDims, model, d, u: jnp.ndarray, mj_step=None):
     """One control step: hold ``u`` for ``dims.substeps`` MuJoCo steps.
 
     Returns data of the same dtypes as ``d``, so that the loops carrying it
@@ -85,9 +85,11 @@ def physics_step(dims: EnvDims, model, d, u: jnp.ndarray):
 
     An RK4 model steps through ``rk4.step`` (MuJoCo's RK4 with one compiled
     copy of the forward dynamics instead of ``mjx.step``'s four), anything
-    else through ``mjx.step``.
+    else through ``mjx.step``; ``mj_step`` overrides the choice (the compile
+    comparison of examples/third_party_compile.py passes ``mjx.step``).
     """
-    mj_step = rk4.step if rk4.applies(model) else mjx.step
+    if mj_step is None:
+        mj_step = rk4.step if rk4.applies(model) else mjx.step
 
     def one_step(_, dd):
         return jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), mj_step(model, dd), dd)

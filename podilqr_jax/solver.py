@@ -346,7 +346,7 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                         f"sigma = {cfg.sigma * reidentify_scale(st.reidentified):.3g}"
                     )
                 elif st.mu > cfg.mu_max:
-                    stop = (Status.LINE_SEARCH_FAILED, _failure_message(cfg, st, ls, nominal.cost, reidentify))
+                    stop = (Status.LINE_SEARCH_FAILED, _failure_message(cfg, st, ls, steps, nominal.cost, reidentify))
                 else:
                     st.mu_retries += 1
                     note = f"no step lowered the cost: mu raised to {st.mu:.3g}, retrying"
@@ -428,9 +428,10 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
     return _result(method, env, dims, cfg, q, st, status, message, noisy, phase_s, compiles, total_watch, wall)
 
 
-def _failure_message(cfg, st, ls, cost0: float, reidentify: int) -> str:
-    """Why the last line search failed, in the numbers it measured."""
-    expected = np.asarray(ls.expected)  # noiseless: candidate i is alpha = 2^-i
+def _failure_message(cfg, st, ls, steps, cost0: float, reidentify: int) -> str:
+    """Why the last (noiseless) line search failed, in the numbers it measured;
+    ``steps`` are its candidate step sizes."""
+    expected = np.asarray(ls.expected)
     costs = np.where(np.isfinite(np.asarray(ls.costs)), np.asarray(ls.costs), np.inf)
     i = int(np.argmin(costs))
     tried = ", ".join(f"x {reidentify_scale(a):g}" for a in range(1, reidentify + 1))
@@ -439,7 +440,7 @@ def _failure_message(cfg, st, ls, cost0: float, reidentify: int) -> str:
     return (
         f"no step size lowered the cost after {st.streak} retries with growing regularisation{again}; "
         f"mu passed mu_max={cfg.mu_max:g}. The last model predicted a decrease of {expected[0]:.3g} for the full "
-        f"step; the best candidate (alpha = {0.5**i:.3g}, predicted {expected[i]:.3g}) {change}"
+        f"step; the best candidate (alpha = {steps[i]:.3g}, predicted {expected[i]:.3g}) {change}"
     )
 
 

@@ -123,8 +123,7 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
                 return jitted(*args, **kwargs)
             return runner(*leaves)
 
-        call.jitted = jitted  # the plain jitted function (``.lower`` for memory analysis and the like)
-        call.lower = jitted.lower
+        call.lower = jitted.lower  # the plain jit's (memory analysis, ``bench.line_search_memory``)
         return call
 
     return wrap
@@ -149,7 +148,8 @@ def _canon(obj) -> str:
         return f"{type(obj).__qualname__}({fields})"
     if isinstance(getattr(obj, "array", None), np.ndarray):  # MJX's _NumPyArrayHashWrapper
         return _canon(obj.array)
-    text = repr(obj)
+    with np.printoptions(threshold=sys.maxsize):  # numpy fields inside other objects in full, never elided
+        text = repr(obj)
     if " at 0x" in text:
         raise TypeError(f"no stable text for a static value of type {type(obj).__qualname__}")
     return text
@@ -166,10 +166,9 @@ def _canon_tree(treedef) -> str:
 
 def _key(name, static, treedef, avals) -> str:
     h = hashlib.sha256()
-    with np.printoptions(threshold=sys.maxsize):  # static numpy fields in full, never elided
-        for part in (name, _versions(), _canon(static), _canon_tree(treedef), repr(avals)):
-            h.update(part.encode())
-            h.update(b"\0")
+    for part in (name, _versions(), _canon(static), _canon_tree(treedef), repr(avals)):
+        h.update(part.encode())
+        h.update(b"\0")
     h.update(f"x64={jax.config.jax_enable_x64};{jax.default_backend()}".encode())
     return h.hexdigest()
 
