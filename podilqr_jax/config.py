@@ -64,8 +64,10 @@ class SolverConfig:
       rcond: relative singular-value cut-off of the least-squares fit.
       seed: PRNG seed of the perturbations and of the noise (same seed, same
         result).
-      variant: one of ``VARIANTS`` (see there): plain, feedback, averaged or
-        nominal.
+      variant: one of ``VARIANTS`` (see there): plain, feedback (the default:
+        closed-loop identification measures better gains, noiseless too; see
+        docs/robustness.md), averaged or nominal. ``plain`` is the paper's
+        POD-iLQR as is, kept as its ablation.
       n_avg: repeats of each sysid perturbation sequence averaged before the
         fit (``averaged`` only); None picks 10 for ``averaged`` and 1 otherwise.
       n_forward: noisy rollouts averaged into each line-search candidate
@@ -87,6 +89,18 @@ class SolverConfig:
         ``line_search_failed``: each one draws fresh perturbations at another
         scale (``reidentify_scale``: sigma x 0.1, then x 10, x 0.01, x 100, ...)
         and starts mu afresh; an accepted step returns to sigma.
+      mirrored: roll out every sysid perturbation sequence as the pair +du,
+        -du (2 n_s x n_avg rollouts) and fit on the half-differences, which
+        cancel the response's even-order terms in du: the curvature bias of
+        the fit drops from O(sigma) to O(sigma^2), so larger perturbations
+        (above round-off and noise) still give the linear model, and the
+        nominal's own noisy measurement is never subtracted (docs/robustness.md).
+      cap_rank: in a noiseless solve, fit at each step t only as many
+        directions as the perturbations can have excited from the fixed start
+        state (``sysid.excited_rank``: nu (t + 1) in the first steps), so no
+        gain is read out of the response's curvature where nothing was
+        measured; the model and the gains are zero there. False keeps every
+        direction above ``rcond`` (the behaviour before; docs/robustness.md).
       impl: MJX implementation of the solve's rollouts, one of ``IMPLS``
         (``jax`` or ``warp``). The model-based reference differentiates
         through MJX and always runs ``jax``.
@@ -106,7 +120,7 @@ class SolverConfig:
     accept_ratio: float = 1e-4
     rcond: float = 1e-10
     seed: int = 0
-    variant: str = "plain"
+    variant: str = "feedback"
     n_avg: Optional[int] = None
     n_forward: Optional[int] = None
     mu_cap: float = 1e3
@@ -115,6 +129,13 @@ class SolverConfig:
     rollout_chunk: Optional[int] = None
     impl: str = "jax"
     reidentify: int = 2
+    mirrored: bool = False
+    cap_rank: bool = True
+
+    @property
+    def rollouts_per_sequence(self) -> int:
+        """Sysid rollouts per perturbation sequence: n_avg repeats, twice when mirrored."""
+        return self.resolved_n_avg() * (2 if self.mirrored else 1)
 
     def replace(self, **changes: Any) -> "SolverConfig":
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
@@ -167,6 +188,9 @@ class SolverConfig:
                         f"set variant='averaged' or drop {name}."
                     )
         check_impl(self.impl)
+        for name in ("mirrored", "cap_rank"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"`{name}` must be true or false; got {getattr(self, name)!r}.")
         _positive("mu_cap", self.mu_cap)
         _positive("memory_budget_mb", self.memory_budget_mb)
         if self.rollout_chunk is not None:

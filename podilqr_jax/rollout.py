@@ -269,7 +269,7 @@ def injected_perturbations(key: jax.Array, sigma, n_s: int, horizon: int, nu: in
     return sigma * jax.random.normal(key, (n_s, horizon, nu), dtype=dtype)
 
 
-@stage(static_argnames=("dims", "q", "n_s", "n_avg", "noisy", "chunk"), outputs=(Trajectory,))
+@stage(static_argnames=("dims", "q", "n_s", "n_avg", "noisy", "chunk", "mirrored"), outputs=(Trajectory,))
 def perturbation_rollouts(
     dims: EnvDims,
     q: int,
@@ -281,6 +281,7 @@ def perturbation_rollouts(
     n_avg: int = 1,
     noisy: bool = False,
     chunk: Optional[int] = None,
+    mirrored: bool = False,
 ) -> Trajectory:
     """The sysid rollouts: u = u_bar + K dZ + du with du ~ N(0, sigma^2 I).
 
@@ -289,7 +290,16 @@ def perturbation_rollouts(
     repeats (observations and applied controls) is returned, [n_s, ...]. With
     ``noisy`` every rollout draws the noise of ``data.noise``.
 
-    With ``chunk`` < n_s x n_avg the batch runs as a ``lax.map`` over chunks of
+    With ``mirrored`` each sequence also runs as ``-du`` (2 n_s x n_avg
+    rollouts, each with its own noise) and the *half-differences*
+    ``((z+ - z-) / 2, (u+ - u-) / 2)`` are returned: deviations from the
+    nominal, not trajectories (fit them against a zero nominal, see
+    ``sysid``). The response's even-order terms in du are the same for both
+    signs and cancel, so the fit's curvature bias drops from O(sigma) to
+    O(sigma^2); and the nominal's own measurement, with its noise, is never
+    subtracted.
+
+    With ``chunk`` < the batch, it runs as a ``lax.map`` over chunks of
     ``chunk // n_avg`` perturbation sequences (``_chunked``): the same du, and
     under noise per-sequence noise keys, so the result does not depend on the
     chunk size (it draws different noise than the single batch, from the same
@@ -297,11 +307,20 @@ def perturbation_rollouts(
     """
     du = injected_perturbations(key, sigma, n_s, dims.horizon, dims.nu, policy.u_bar.dtype)
     noise_key = jax.random.fold_in(key, 1)
-    if chunk is not None and n_s * n_avg > chunk:
+    if mirrored:
+        pair = _sequences(dims, q, data, policy, jnp.concatenate([du, -du]), noise_key, n_avg, noisy, chunk)
+        return Trajectory((pair.z[:n_s] - pair.z[n_s:]) / 2, (pair.u[:n_s] - pair.u[n_s:]) / 2, None)
+    return _sequences(dims, q, data, policy, du, noise_key, n_avg, noisy, chunk)
+
+
+def _sequences(dims, q, data, policy, du, noise_key, n_avg, noisy, chunk) -> Trajectory:
+    """Roll out each sequence of ``du`` [n, T, nu] ``n_avg`` times and average its repeats."""
+    n = du.shape[0]
+    if chunk is not None and n * n_avg > chunk:
         return _chunked(dims, q, data, policy, du, noise_key, n_avg, noisy, max(1, chunk // n_avg))
     if n_avg > 1:
         du = jnp.repeat(du, n_avg, axis=0)
-    batch = n_s * n_avg
+    batch = n * n_avg
     noise = sample_noise(noise_key, data.noise, batch, dims.horizon) if noisy else None
     du, noise = shard_batch((du, noise), batch)
     zero = jnp.zeros((dims.horizon, dims.nu), policy.u_bar.dtype)

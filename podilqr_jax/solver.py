@@ -50,7 +50,7 @@ from .rollout import (
     perturbation_rollouts,
     replicated,
 )
-from .sysid import fit_information_model
+from .sysid import excited_rank, fit_information_model
 
 Callback = Callable[[IterationInfo], None]
 
@@ -114,21 +114,27 @@ def solve(
     n_avg = cfg.resolved_n_avg()
     chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy))
     no_gains = _on_device(np.zeros((dims.horizon, dims.nu, nZ)))
+    # noiseless sysid from a fixed start: fit only the directions the perturbations excite (sysid.excited_rank)
+    max_rank = jax.device_put(excited_rank(dims, q), replicated()) if cfg.cap_rank and not noisy else None
+    zero_z = _on_device(np.zeros((dims.horizon + 1, dims.nz)))
+    zero_u = _on_device(np.zeros((dims.horizon, dims.nu)))
 
     def identify(key, nominal, gains, scale=1.0):
         t0 = time.perf_counter()
         policy = _policy(nominal, gains if feedback else no_gains)
         sigma_t = sigma if scale == 1.0 else _on_device(cfg.sigma * scale)
         traj = perturbation_rollouts(
-            dims, q, cfg.n_s, data, policy, key, sigma_t, n_avg=n_avg, noisy=noisy, chunk=chunk
+            dims, q, cfg.n_s, data, policy, key, sigma_t, n_avg=n_avg, noisy=noisy, chunk=chunk, mirrored=cfg.mirrored
         )
         traj.z.block_until_ready()
         t1 = time.perf_counter()
+        # mirrored rollouts come back as half-differences: deviations about a zero nominal
+        z_bar, u_bar = (zero_z, zero_u) if cfg.mirrored else (nominal.z_bar, nominal.u_bar)
         if cfg.estimator == "iv":
             du = injected_perturbations(key, sigma_t, cfg.n_s, dims.horizon, dims.nu)
-            model, report = fit_information_model_iv(traj.z, traj.u, du, nominal.z_bar, nominal.u_bar, q, rcond)
+            model, report = fit_information_model_iv(traj.z, traj.u, du, z_bar, u_bar, q, rcond)
         else:
-            model, report = fit_information_model(traj.z, traj.u, nominal.z_bar, nominal.u_bar, q, rcond)
+            model, report = fit_information_model(traj.z, traj.u, z_bar, u_bar, q, rcond, max_rank)
         stop = None
         n_bad = int(report.n_bad)
         n_good = cfg.n_s - n_bad
@@ -147,7 +153,7 @@ def solve(
                 "so the fit sees no dynamics: raise sigma (or use float64, see docs/algorithm.md)",
             )
         t2 = time.perf_counter()
-        return model, stop, cfg.n_s * n_avg, n_bad, {"rollouts": t1 - t0, "fit": t2 - t1}
+        return model, stop, cfg.n_s * cfg.rollouts_per_sequence, n_bad, {"rollouts": t1 - t0, "fit": t2 - t1}
 
     needed = n_regressors(dims.nz, dims.nu, q)
     return _iterate(

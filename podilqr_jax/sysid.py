@@ -17,6 +17,17 @@ minimum-norm solution is taken from an SVD, discarding singular values below
 before t = 0, the deterministic z_0) get zero weight instead of a NaN; the
 Python driver refuses n_s below the number of regressors before tracing.
 
+Directions nothing excited (``excited_rank``): from a fixed start state with no
+noise, dZ_t is to first order a linear map of the t perturbations du_0 ..
+du_{t-1} that acted before it, so the regressors [dZ_t, du_t] span at most
+nu (t + 1) directions (and never more than the 2 nv + q nu that the tangent
+state and the controls in Z_t can span). Whatever else the data hold there is
+the response's curvature (second order in sigma) or round-off; a fit that keeps
+it reads slopes out of curvature, and the gains built on them (K_1 of a
+pendulum was 200x the exact one) are confident and wrong. With ``max_rank``
+the fit keeps at most that many singular directions, so the model, and the
+feedback, are zero along what was not measured.
+
 Shapes: z [n_s, T+1, nz], u [n_s, T, nu]; Theta [T, nz, nZ + nu];
 A [T, nZ, nZ], B [T, nZ, nu].
 """
@@ -27,8 +38,9 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .info_state import companion, info_states
+from .info_state import companion, info_states, n_regressors
 from .stages import stage
 
 
@@ -49,15 +61,27 @@ class FitReport(NamedTuple):
     n_bad: jnp.ndarray  # scalar int: rollouts with a non-finite number, left out of the fit
 
 
-def least_squares(X: jnp.ndarray, Y: jnp.ndarray, rcond: jnp.ndarray):
+def excited_rank(dims, q: int) -> np.ndarray:
+    """[T] the most directions the sysid data can excite at each step t from a
+    fixed start state, noiseless: min(q (nz + nu), nu (t + 1), 2 nv + q nu)
+    (see the module docstring)."""
+    t = np.arange(dims.horizon)
+    cap = min(n_regressors(dims.nz, dims.nu, q), 2 * dims.nv + q * dims.nu)
+    return np.minimum(cap, dims.nu * (t + 1)).astype(np.int32)
+
+
+def least_squares(X: jnp.ndarray, Y: jnp.ndarray, rcond: jnp.ndarray, max_rank=None):
     """Minimum-norm least squares Y ~ X W with column scaling; X [n, p], Y [n, m].
 
-    Returns (W [p, m], rank).
+    Keeps the singular directions above ``rcond`` times the largest, and at
+    most ``max_rank`` of them when given. Returns (W [p, m], rank).
     """
     scale = jnp.sqrt(jnp.mean(X * X, axis=0))
     scale = jnp.where(scale > 0, scale, 1.0)
     U, s, Vt = jnp.linalg.svd(X / scale, full_matrices=False)
     keep = s > rcond * s[0]
+    if max_rank is not None:
+        keep = keep & (jnp.arange(s.shape[0]) < max_rank)
     s_inv = jnp.where(keep, 1.0 / jnp.where(keep, s, 1.0), 0.0)
     W = Vt.T @ (s_inv[:, None] * (U.T @ Y))
     return W / scale[:, None], jnp.sum(keep)
@@ -80,12 +104,13 @@ def finite_rollouts(z, u) -> jnp.ndarray:
     return jnp.all(jnp.isfinite(z), axis=(1, 2)) & jnp.all(jnp.isfinite(u), axis=(1, 2))
 
 
-def fit_each_step(z, u, inputs, q: int, solve) -> tuple[LinearModel, FitReport]:
+def fit_each_step(z, u, inputs, q: int, solve, per_step=()) -> tuple[LinearModel, FitReport]:
     """The per-step fit as a ``lax.scan`` over time, shared by every estimator.
 
     ``inputs`` are time-major arrays whose first two are the regressors X and
     targets Y of ``regression_data``; ``solve(X_t, Y_t, ...)`` returns
-    (W [nZ + nu, nz], rank, residual [n_s, nz]).
+    (W [nZ + nu, nz], rank, residual [n_s, nz]); ``per_step`` are further
+    time-major arrays (leading axis T, no rollout axis) passed after them.
 
     A rollout with any non-finite number (a divergent one) is left out: its
     rows of every input are zero, which removes them from the least squares,
@@ -95,7 +120,7 @@ def fit_each_step(z, u, inputs, q: int, solve) -> tuple[LinearModel, FitReport]:
     nz, nu = z.shape[-1], u.shape[-1]
     good = finite_rollouts(z, u)
     all_finite = jnp.all(good)
-    inputs = tuple(jnp.where(good[None, :, None], a, 0.0) for a in inputs)
+    inputs = tuple(jnp.where(good[None, :, None], a, 0.0) for a in inputs) + tuple(per_step)
 
     def step(_, xs):
         W, rank, res = solve(*xs)
@@ -107,11 +132,21 @@ def fit_each_step(z, u, inputs, q: int, solve) -> tuple[LinearModel, FitReport]:
 
 
 @stage(static_argnames=("q",), outputs=(LinearModel, FitReport))
-def fit_information_model(z, u, z_bar, u_bar, q: int, rcond) -> tuple[LinearModel, FitReport]:
-    """Fit Theta_t by least squares at every step (a ``lax.scan`` over time)."""
+def fit_information_model(z, u, z_bar, u_bar, q: int, rcond, max_rank=None) -> tuple[LinearModel, FitReport]:
+    """Fit Theta_t by least squares at every step (a ``lax.scan`` over time).
 
-    def solve(X_t, Y_t):
-        W, rank = least_squares(X_t, Y_t, rcond)
+    ``max_rank`` [T] (optional, e.g. ``excited_rank``) caps the singular
+    directions kept at each step."""
+    if max_rank is None:
+
+        def solve(X_t, Y_t):
+            W, rank = least_squares(X_t, Y_t, rcond)
+            return W, rank, Y_t - X_t @ W
+
+        return fit_each_step(z, u, regression_data(z, u, z_bar, u_bar, q), q, solve)
+
+    def solve_capped(X_t, Y_t, r_t):
+        W, rank = least_squares(X_t, Y_t, rcond, r_t)
         return W, rank, Y_t - X_t @ W
 
-    return fit_each_step(z, u, regression_data(z, u, z_bar, u_bar, q), q, solve)
+    return fit_each_step(z, u, regression_data(z, u, z_bar, u_bar, q), q, solve_capped, per_step=(max_rank,))

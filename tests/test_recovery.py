@@ -25,7 +25,9 @@ def pendulum():
 
 
 def test_a_failed_line_search_reidentifies_before_it_stops(pendulum):
-    settings = dict(sigma=1.0, n_s=8, max_iterations=200)
+    # The paper's open-loop identification with every direction fitted: the defaults (closed loop, the
+    # rank cap) converge at sigma = 1 on this task, and the check needs a line search that fails.
+    settings = dict(sigma=1.0, n_s=8, max_iterations=200, variant="plain", cap_rank=False)
     gave_up = pj.solve(pendulum, pj.default_config(pendulum, reidentify=0, **settings))
     assert gave_up.status == pj.Status.LINE_SEARCH_FAILED
     assert gave_up.reidentifications == 0

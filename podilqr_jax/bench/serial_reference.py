@@ -293,6 +293,11 @@ def line_search(task: Task, nominal: Nominal, gains: Gains, cfg: pj.SolverConfig
 
 
 # --------------------------------------------------------------------- driver
+PAPER_SETTINGS = {"variant": "plain", "cap_rank": False}
+"""The settings that make ``podilqr_jax.solve`` the algorithm this reference
+implements: the paper's open-loop identification, every direction above rcond."""
+
+
 def serial_solve(
     env: pj.Env,
     cfg: Optional[pj.SolverConfig] = None,
@@ -319,10 +324,11 @@ def serial_solve(
     t_start = time.perf_counter()
     cfg = pj.default_config(env) if cfg is None else cfg
     q = cfg.validate(env, data_based=True)
-    if env.noisy or cfg.variant != "plain" or cfg.estimator != "ols":
+    if env.noisy or cfg.variant != "plain" or cfg.estimator != "ols" or cfg.cap_rank or cfg.mirrored:
         raise ValueError(
-            "serial_solve is the noiseless plain POD-iLQR with least squares; got "
-            f"noisy={env.noisy}, variant={cfg.variant!r}, estimator={cfg.estimator!r}."
+            "serial_solve is the noiseless plain POD-iLQR with least squares on every direction above rcond; "
+            f"got noisy={env.noisy}, variant={cfg.variant!r}, estimator={cfg.estimator!r}, "
+            f"cap_rank={cfg.cap_rank}, mirrored={cfg.mirrored} (use PAPER_SETTINGS)."
         )
     task = make_serial_task(env, q)
     rng = np.random.default_rng(cfg.seed)
@@ -447,7 +453,7 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
 
     env = pj.make_task(args.task)
-    overrides = {"seed": args.seed}
+    overrides = {"seed": args.seed, **PAPER_SETTINGS}
     for name, value in (("n_s", args.n_s), ("sigma", args.sigma), ("max_iterations", args.iterations)):
         if value is not None:
             overrides[name] = value

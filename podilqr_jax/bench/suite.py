@@ -214,10 +214,10 @@ def grid_cell(task: str, n_s: int, n_avg: int, iterations: int) -> dict[str, Any
 
 def serial_comparison(task: str, n_s: int, iterations: int, time_to_cost: bool) -> dict[str, Any]:
     """Seconds per iteration of the serial NumPy reference and of ours, noiseless plain POD-iLQR."""
-    from .serial_reference import serial_solve
+    from .serial_reference import PAPER_SETTINGS, serial_solve
 
     env = pj.make_task(task)
-    cfg = pj.default_config(env, n_s=n_s)
+    cfg = pj.default_config(env, n_s=n_s, **PAPER_SETTINGS)
     serial = serial_solve(env, cfg.replace(max_iterations=iterations))
     warm, ours, walls = warm_and_timed(env, cfg, iterations)
     out = {
