@@ -137,16 +137,10 @@ def fit_information_model(z, u, z_bar, u_bar, q: int, rcond, max_rank=None) -> t
 
     ``max_rank`` [T] (optional, e.g. ``excited_rank``) caps the singular
     directions kept at each step."""
-    if max_rank is None:
 
-        def solve(X_t, Y_t):
-            W, rank = least_squares(X_t, Y_t, rcond)
-            return W, rank, Y_t - X_t @ W
-
-        return fit_each_step(z, u, regression_data(z, u, z_bar, u_bar, q), q, solve)
-
-    def solve_capped(X_t, Y_t, r_t):
-        W, rank = least_squares(X_t, Y_t, rcond, r_t)
+    def solve(X_t, Y_t, *max_rank_t):
+        W, rank = least_squares(X_t, Y_t, rcond, *max_rank_t)
         return W, rank, Y_t - X_t @ W
 
-    return fit_each_step(z, u, regression_data(z, u, z_bar, u_bar, q), q, solve_capped, per_step=(max_rank,))
+    per_step = () if max_rank is None else (max_rank,)
+    return fit_each_step(z, u, regression_data(z, u, z_bar, u_bar, q), q, solve, per_step)
