@@ -33,7 +33,7 @@ from .errors import ConfigError
 from .sysid import LinearModel
 
 FILE = "checkpoint.npz"
-FORMAT = 1
+FORMAT = 2  # 2: the sysid scale, its history and the mirrored switch
 _RESUMABLE_CHANGES = ("max_iterations",)
 
 
@@ -65,6 +65,9 @@ class SolverState:
     key: jnp.ndarray  # sysid PRNG key
     ls_key: jnp.ndarray  # line-search PRNG key
     mu: float
+    sigma: float = float("nan")  # the sysid scale (adapted with cfg.adapt_sigma) before re-identification factors
+    mirrored: int = 0  # 1 once the identification runs mirrored pairs (configured, or a recovery)
+    open_loop: int = 0  # 1 once a recovery switched a closed-loop identification to open loop
     failures: int = 0  # consecutive rejected steps (mu grows by factor^failures)
     rejected: int = 0
     remeasured: int = 0
@@ -83,6 +86,7 @@ class SolverState:
     alpha_history: list = dataclasses.field(default_factory=list)
     mu_history: list = dataclasses.field(default_factory=list)
     grad_history: list = dataclasses.field(default_factory=list)
+    sigma_history: list = dataclasses.field(default_factory=list)  # the sigma of every identification
 
     _COUNTERS = (
         "iteration",
@@ -97,8 +101,18 @@ class SolverState:
         "mu_retries",
         "reidentified",
         "reidentifications",
+        "mirrored",
+        "open_loop",
     )
-    _HISTORIES = ("cost_history", "true_history", "open_history", "alpha_history", "mu_history", "grad_history")
+    _HISTORIES = (
+        "cost_history",
+        "true_history",
+        "open_history",
+        "alpha_history",
+        "mu_history",
+        "grad_history",
+        "sigma_history",
+    )
 
     def snapshot(self) -> "SolverState":
         """A shallow copy of the state at an iteration boundary, in O(1): arrays
@@ -158,6 +172,7 @@ def save_checkpoint(directory: str | os.PathLike, state: SolverState, print_: di
         "fingerprint": print_,
         "nominal_cost": n.cost,
         "mu": state.mu,
+        "sigma": state.sigma,
         "stopped": state.stopped,
         **{name: getattr(state, name) for name in SolverState._COUNTERS},
         **{name: getattr(state, name) for name in SolverState._HISTORIES},
@@ -224,6 +239,7 @@ def load_checkpoint(path: str | os.PathLike, expected: dict[str, Any], to_device
         key=jnp.asarray(arrays["key"]),
         ls_key=jnp.asarray(arrays["ls_key"]),
         mu=float(header["mu"]),
+        sigma=float(header["sigma"]),
         stopped=header.get("stopped"),
     )
     for name in SolverState._COUNTERS:

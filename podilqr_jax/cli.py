@@ -138,6 +138,13 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="the Kalman estimator's allowance for model error, a share of the actuator noise (default 0.1)",
     )
+    e.add_argument(
+        "--measurement-ratio",
+        type=float,
+        default=None,
+        help="measurement noise as a share of the actuator noise's level (default 0.1, the paper's; 0: exact "
+        "measurements, which isolates what the gains cost)",
+    )
     e.add_argument("--seed", type=int, default=None, help="PRNG seed of the episodes' noise (default 0)")
     e.add_argument("--out", default="runs/evaluate", help="output folder (evaluate.json, evaluate.png, table.md)")
     e.set_defaults(func=_cmd_evaluate)
@@ -330,7 +337,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     changes: dict[str, Any] = {}
     if args.noise is not None:
         changes["levels"] = _parse_levels(args.noise)
-    for name in ("episodes", "replan_episodes", "replan_every", "replan_iterations", "u_limit", "model_error", "seed"):
+    names = ("episodes", "replan_episodes", "replan_every", "replan_iterations", "u_limit", "model_error", "seed")
+    for name in names + ("measurement_ratio",):
         if getattr(args, name) is not None:
             changes[name] = getattr(args, name)
     if args.no_replan:
@@ -510,6 +518,8 @@ class _Progress:
             f"it {info.iteration:4d}  cost {info.cost:12.6g}  alpha {info.alpha:6.3g}  "
             f"mu {info.mu:8.2g}  |g| {info.grad_norm:8.2g}  {info.rollouts_per_s:9.0f} rollouts/s"
         )
+        if info.sigma == info.sigma:
+            stats += f"  sigma {info.sigma:7.2g}"
         if info.true_cost == info.true_cost and info.true_cost != info.cost:
             stats += f"  true {info.true_cost:10.6g}"
         if info.note:

@@ -17,6 +17,7 @@ from .estimators import ESTIMATORS, n_instruments
 from .info_state import n_regressors
 
 IMPLS = ("jax", "warp")
+SIGMA_SCALES = ("actuator", "absolute")
 """MJX's implementations a solve can run its rollouts on (``SolverConfig.impl``):
 ``jax`` (the default, any device) and ``warp`` (NVIDIA Warp kernels, on a CUDA
 GPU or the CPU; needs ``warp-lang``: ``pip install 'podilqr_jax[cuda]'``).
@@ -50,7 +51,25 @@ class SolverConfig:
         task observes the full state and 2 otherwise.
       n_s: sysid rollouts per iteration (must be >= q (nz + nu), the number of
         regressors of the least-squares fit).
-      sigma: standard deviation of the sysid control perturbations du.
+      sigma: standard deviation of the sysid control perturbations du, in
+        the units ``sigma_scale`` says; with ``adapt_sigma`` the start of an
+        adaptive scale.
+      sigma_scale: ``"actuator"`` (the default): actuator j is perturbed
+        with sigma x s_j, s_j its half ``ctrlrange`` where the actuator is
+        limited (1 otherwise), so a model's units do not set the experiment;
+        ``"absolute"``: sigma for every actuator (the paper's).
+      adapt_sigma: in a noiseless data-based solve, set sigma afresh after
+        every identification from the fit's own diagnostics
+        (``adapted_sigma``): smaller where the relative fit residual (the
+        response's curvature) is above ``max_residual``, larger where the
+        residual sits on the round-off floor, always inside
+        [sigma / sigma_range, sigma x sigma_range]. The scale used at
+        every iteration is in ``Result.sigma_history`` and the progress line.
+        Under noise the residual is the noise's, not curvature, and sigma
+        stays as set (docs/robustness.md).
+      max_residual: the fit residual (RMS over the response's, all steps)
+        above which ``adapt_sigma`` reads curvature and shrinks sigma.
+      sigma_range: the adapted sigma stays within this factor of ``sigma``.
       max_iterations: iLQR iterations at most.
       rtol: stop when an accepted step lowers the cost by less than rtol x J,
         or when no step can and the predicted decrease is below rtol x J.
@@ -88,7 +107,18 @@ class SolverConfig:
         step lowers the cost and mu has passed mu_max, before it stops
         ``line_search_failed``: each one draws fresh perturbations at another
         scale (``reidentify_scale``: sigma x 0.1, then x 10, x 0.01, x 100, ...)
-        and starts mu afresh; an accepted step returns to sigma.
+        and starts mu afresh; an accepted step returns to sigma. When they
+        are spent and ``escalate`` is on, the solve changes the experiment
+        for the rest of the solve, and goes through the scales again each
+        time: first to mirrored perturbation pairs (``mirrored``), then to
+        the paper's open-loop identification without pairs (``plain``).
+      saturated_open_loop: in closed-loop identification, no feedback on a
+        control that sits on its ctrlrange bound in the nominal, so every
+        perturbation of it acts on one side as in open loop (with the
+        feedback the response pushed it outward and the fit lost the
+        control's column; docs/robustness.md). False: the gains as they are.
+      escalate: the last recoveries before ``line_search_failed``, above
+        (measured on dm_control's cart-pole and pendulum, docs/robustness.md).
       mirrored: roll out every sysid perturbation sequence as the pair +du,
         -du (2 n_s x n_avg rollouts) and fit on the half-differences, which
         cancel the response's even-order terms in du: the curvature bias of
@@ -109,6 +139,10 @@ class SolverConfig:
     q: Optional[int] = None
     n_s: int = 40
     sigma: float = 1e-4
+    sigma_scale: str = "actuator"
+    adapt_sigma: bool = True
+    max_residual: float = 1e-3
+    sigma_range: float = 1e3
     max_iterations: int = 300
     rtol: float = 1e-9
     gtol: float = 1e-9
@@ -130,12 +164,9 @@ class SolverConfig:
     impl: str = "jax"
     reidentify: int = 2
     mirrored: bool = False
+    escalate: bool = True
+    saturated_open_loop: bool = True
     cap_rank: bool = True
-
-    @property
-    def rollouts_per_sequence(self) -> int:
-        """Sysid rollouts per perturbation sequence: n_avg repeats, twice when mirrored."""
-        return self.resolved_n_avg() * (2 if self.mirrored else 1)
 
     def replace(self, **changes: Any) -> "SolverConfig":
         unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
@@ -206,7 +237,14 @@ class SolverConfig:
         _int("reidentify", self.reidentify, 0)
         if self.q is not None:
             _int("q", self.q, 1)
-        for name in ("sigma", "mu_max", "mu_factor"):
+        if self.sigma_scale not in SIGMA_SCALES:
+            raise ConfigError(
+                f"Unknown `sigma_scale` {self.sigma_scale!r}; choose one of {', '.join(SIGMA_SCALES)} "
+                "(per actuator's ctrlrange, or one absolute sigma)."
+            )
+        if _finite_number("sigma_range", self.sigma_range) < 1:
+            raise ConfigError(f"`sigma_range` must be >= 1 (a factor either side of sigma); got {self.sigma_range!r}.")
+        for name in ("sigma", "mu_max", "mu_factor", "max_residual"):
             _positive(name, getattr(self, name))
         for name in ("rtol", "gtol", "mu_init", "mu_min", "accept_ratio", "rcond"):
             _nonnegative(name, getattr(self, name))
@@ -295,3 +333,29 @@ def reidentify_scale(attempt: int) -> float:
         return 1.0
     decades = (attempt + 1) // 2
     return 10.0 ** (-decades if attempt % 2 else decades)
+
+
+def adapted_sigma(sigma: float, rho: float, floor: float, order: int, cfg: "SolverConfig") -> float:
+    """The sysid scale for the next identification, from the last one's fit.
+
+    ``rho`` is the fit's relative residual (RMS of the residual over the RMS
+    of the response, all steps), ``floor`` the round-off's share of it
+    (``eps x`` RMS of the nominal's observations over the RMS of the
+    response) and ``order`` how the curvature part grows with sigma (1 for
+    least squares on the raw rollouts; 2 for mirrored pairs, whose even
+    terms cancel). Noiseless, rho is curvature (``~ sigma^order``) plus
+    round-off (``~ 1 / sigma``):
+
+    - rho above ``cfg.max_residual``: curvature; shrink sigma to put rho a
+      decade below it (by 10x at most per identification);
+    - rho within 10x of the floor: round-off; grow sigma 10x;
+    - else keep sigma.
+
+    The result stays within ``cfg.sigma_range`` of ``cfg.sigma``.
+    """
+    new = sigma
+    if rho > cfg.max_residual:
+        new = sigma * max(0.1, (0.1 * cfg.max_residual / rho) ** (1.0 / order))
+    elif rho < 10.0 * floor:
+        new = sigma * 10.0
+    return float(min(max(new, cfg.sigma / cfg.sigma_range), cfg.sigma * cfg.sigma_range))

@@ -42,6 +42,7 @@ class IterationInfo:
     wall_s: float
     true_cost: float = float("nan")  # the policy's cost on the noiseless system
     note: str = ""  # what happened out of the ordinary (a retry, left-out rollouts)
+    sigma: float = float("nan")  # the sysid scale of the iteration's identification (NaN: none, or model-based)
 
 
 @dataclasses.dataclass
@@ -102,6 +103,11 @@ class Result:
     reidentifications: int = 0  # fresh identifications at another sigma after no step lowered the cost
     warnings: list[str] = dataclasses.field(default_factory=list)  # also the options switched off for MJX
     control_limits: list = dataclasses.field(default_factory=list)  # [nu][low, high] ctrlrange; [] when unlimited
+    # per iteration, the sysid scale of the model it used (times sigma_units per actuator; cfg.adapt_sigma)
+    sigma_history: list = dataclasses.field(default_factory=list)
+    sigma_units: list = dataclasses.field(default_factory=list)  # [nu] (cfg.sigma_scale)
+    mirrored: bool = False  # the identification ran mirrored pairs at the end (cfg.mirrored or a recovery)
+    open_loop: bool = False  # ... and open loop (variant plain, or a recovery switched to it)
 
     @property
     def final_cost(self) -> float:
@@ -174,6 +180,10 @@ class Result:
             "diverged_candidates": self.diverged_candidates,
             "mu_retries": self.mu_retries,
             "reidentifications": self.reidentifications,
+            "sigma_history": self.sigma_history,
+            "sigma_units": self.sigma_units,
+            "mirrored": self.mirrored,
+            "open_loop": self.open_loop,
             "warnings": list(self.warnings),
             "control_limits": [[float(lo), float(hi)] for lo, hi in self.control_limits],
             "alpha_history": self.alpha_history,

@@ -32,7 +32,7 @@ import numpy as np
 from .backward import QuadraticCost, Regularisation, backward_pass
 from .checkpoint import Nominal, SolverState, fingerprint, load_checkpoint, save_checkpoint
 from .compile_watch import CompileWatch
-from .config import SolverConfig, reidentify_scale
+from .config import SolverConfig, adapted_sigma, reidentify_scale
 from .env import Env, mjx_model_of
 from .errors import ConfigError
 from .estimators import fit_information_model_iv
@@ -107,9 +107,10 @@ def solve(
     run = _run_options(checkpoint, checkpoint_every, resume)
     dims, data = env.dims, _on_device(_in_impl(env, cfg.impl))
     nZ = info_dim(dims.nz, dims.nu, q)
-    sigma = _on_device(cfg.sigma)
     rcond = _on_device(cfg.rcond)
     noisy = env.noisy and cfg.variant != "nominal"
+    units = actuator_units(env, cfg)
+    adapt = cfg.adapt_sigma and not noisy
     feedback = cfg.variant != "plain"
     n_avg = cfg.resolved_n_avg()
     chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy))
@@ -119,17 +120,24 @@ def solve(
     zero_z = _on_device(np.zeros((dims.horizon + 1, dims.nz)))
     zero_u = _on_device(np.zeros((dims.horizon, dims.nu)))
 
-    def identify(key, nominal, gains, scale=1.0):
+    def identify(key, nominal, gains, sigma, mirrored, open_loop):
+        """One identification at scale ``sigma`` (times ``units``), with
+        mirrored pairs or open loop where the recovery switched to them;
+        returns (model, stop, rollouts, n_bad, phase times, the next sigma or None)."""
         t0 = time.perf_counter()
-        policy = _policy(nominal, gains if feedback else no_gains)
-        sigma_t = sigma if scale == 1.0 else _on_device(cfg.sigma * scale)
+        mirrored = mirrored and not open_loop
+        closed = feedback and not open_loop
+        if closed and cfg.saturated_open_loop and env.limited:
+            gains = _unsaturated_gains(gains, nominal.u_bar, data.u_low, data.u_high)
+        policy = _policy(nominal, gains if closed else no_gains)
+        sigma_t = _on_device(sigma * units)
         traj = perturbation_rollouts(
-            dims, q, cfg.n_s, data, policy, key, sigma_t, n_avg=n_avg, noisy=noisy, chunk=chunk, mirrored=cfg.mirrored
+            dims, q, cfg.n_s, data, policy, key, sigma_t, n_avg=n_avg, noisy=noisy, chunk=chunk, mirrored=mirrored
         )
         traj.z.block_until_ready()
         t1 = time.perf_counter()
         # mirrored rollouts come back as half-differences: deviations about a zero nominal
-        z_bar, u_bar = (zero_z, zero_u) if cfg.mirrored else (nominal.z_bar, nominal.u_bar)
+        z_bar, u_bar = (zero_z, zero_u) if mirrored else (nominal.z_bar, nominal.u_bar)
         if cfg.estimator == "iv":
             du = injected_perturbations(key, sigma_t, cfg.n_s, dims.horizon, dims.nu)
             model, report = fit_information_model_iv(traj.z, traj.u, du, z_bar, u_bar, q, rcond)
@@ -149,11 +157,20 @@ def solve(
         elif float(jnp.max(report.target_rms)) == 0.0:
             stop = (
                 Status.NO_RESPONSE,
-                f"the sysid perturbations (sigma={cfg.sigma * scale:g}) left every observation unchanged, "
+                f"the sysid perturbations (sigma={sigma:g}) left every observation unchanged, "
                 "so the fit sees no dynamics: raise sigma (or use float64, see docs/algorithm.md)",
             )
+        following = None
+        res, target = (np.asarray(report.residual_rms), np.asarray(report.target_rms)) if adapt else (0, 0)
+        if adapt and stop is None and np.all(np.isfinite(res)) and np.sum(target**2) > 0:
+            response = float(np.sqrt(np.mean(target**2)))
+            rho = float(np.sqrt(np.sum(res**2) / np.sum(target**2)))
+            level = float(np.sqrt(np.mean(np.asarray(nominal.z_bar) ** 2)))
+            floor = float(np.finfo(target.dtype).eps) * level / response
+            following = adapted_sigma(sigma, rho, floor, 2 if mirrored else 1, cfg)
         t2 = time.perf_counter()
-        return model, stop, cfg.n_s * cfg.rollouts_per_sequence, n_bad, {"rollouts": t1 - t0, "fit": t2 - t1}
+        rollouts = cfg.n_s * n_avg * (2 if mirrored else 1)
+        return model, stop, rollouts, n_bad, {"rollouts": t1 - t0, "fit": t2 - t1}, following
 
     needed = n_regressors(dims.nz, dims.nu, q)
     return _iterate(
@@ -183,15 +200,45 @@ def solve_model_based(
     view = env.full_state_view()
     dims, data = view.dims, _on_device(view.data)
 
-    def identify(key, nominal, gains, scale=1.0):
+    def identify(key, nominal, gains, sigma, mirrored, open_loop):
         t0 = time.perf_counter()
         model = linearise(dims, data, nominal.x_bar, nominal.u_bar)
         finite = bool(jnp.all(jnp.isfinite(model.A)) & jnp.all(jnp.isfinite(model.B)))
         why = "the exact linearisation is not finite" + nonfinite_hint(env.mj_model)
         stop = None if finite else (Status.NONFINITE, why)
-        return model, stop, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}
+        return model, stop, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}, None
 
     return _iterate("model-based", env, dims, data, cfg, 1, identify, u_init, callback, False, 1, run)
+
+
+@jax.jit
+def _unsaturated_gains(K, u_bar, u_low, u_high):
+    """``K`` [T, nu, nZ] with the rows of controls that sit on their ctrlrange
+    bound in the nominal set to zero, for the closed-loop sysid rollouts
+    (``SolverConfig.saturated_open_loop``).
+
+    Feedback on a saturated control cannot act past the bound, and it can
+    keep the perturbations from acting at all: a clipped perturbation is
+    one-sided, so the deviations after it have a mean of the order of sigma,
+    which the gains turn into a push against the bound. On dm_control's
+    cart-pole the applied control moved in 0-20% of the rollouts at the last
+    saturated steps, the fit lost the control's column there (rank 4 of 5)
+    and the step it proposed raised the cost (``examples/saturated_sysid.py``).
+    With those rows at zero each perturbation acts on one side, as open loop.
+    """
+    at_bound = (u_bar <= u_low) | (u_bar >= u_high)
+    return jnp.where(at_bound[:, :, None], 0.0, K)
+
+
+def actuator_units(env: Env, cfg: SolverConfig) -> np.ndarray:
+    """[nu] the unit of each actuator's sysid perturbation (``cfg.sigma_scale``):
+    half its ctrlrange where it is limited, else 1; all 1 for ``absolute``."""
+    low, high = np.asarray(env.data.u_low, dtype=float), np.asarray(env.data.u_high, dtype=float)
+    half = (high - low) / 2
+    limited = np.isfinite(half) & (half > 0)
+    if cfg.sigma_scale == "absolute":
+        return np.ones(env.dims.nu)
+    return np.where(limited, half, 1.0)
 
 
 def _in_impl(env: Env, impl: str):
@@ -215,6 +262,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
     nZ = info_dim(dims.nz, dims.nu, q)
     # Only a data-based fit has something to re-draw; under noise a rejected step never stops the solve.
     reidentify = cfg.reidentify if method == "pod-ilqr" and not noisy else 0
+    escalate = reidentify > 0 and cfg.escalate
+    closed_loop = cfg.variant != "plain"
     selector = observation_selector(dims.nz, dims.nu, q)
     box = (data.u_low, data.u_high) if env.limited else (None, None)
     cost_model = QuadraticCost(selector, data.z_target, data.Q, data.QT, data.R, data.goal_step, *box)
@@ -262,14 +311,22 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
         nominal = st.nominal
         if st.model is None:
             st.key, sub = jax.random.split(st.key)
-            scale = reidentify_scale(st.reidentified)
-            st.model, stop, iter_rollouts, n_bad, times = identify(sub, nominal, st.gains, scale)
+            sigma = st.sigma * reidentify_scale(st.reidentified)
+            st.model, stop, iter_rollouts, n_bad, times, following = identify(
+                sub, nominal, st.gains, sigma, bool(st.mirrored), bool(st.open_loop)
+            )
+            if method == "pod-ilqr":  # the model-based reference has no scale
+                st.sigma_history.append(sigma)
+            if following is not None and st.reidentified == 0:  # adapt from the base scale only
+                st.sigma = following
             st.rollouts += iter_rollouts
             for name, secs in times.items():
                 phase_s[name] += secs
             if n_bad and stop is None:
                 st.diverged_rollouts += n_bad
                 note = f"{n_bad} sysid rollouts diverged, left out of the fit"
+        elif method == "pod-ilqr":  # the model of the last identification, reused with a larger mu
+            st.sigma_history.append(st.sigma_history[-1])
         if stop is not None:
             st.model = None
             return stop, note, accepted, iter_rollouts
@@ -349,10 +406,27 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                     st.mu = max(cfg.mu_init, cfg.mu_min)
                     note = (
                         f"no step lowered the cost up to mu_max: re-identifying with fresh perturbations at "
-                        f"sigma = {cfg.sigma * reidentify_scale(st.reidentified):.3g}"
+                        f"sigma = {st.sigma * reidentify_scale(st.reidentified):.3g}"
+                    )
+                elif st.mu > cfg.mu_max and escalate and _next_experiment(st, closed_loop) is not None:
+                    # The scales are spent: another experiment for the rest of the solve, the scales afresh.
+                    change = _next_experiment(st, closed_loop)
+                    setattr(st, change, 1)
+                    st.reidentified = 0
+                    st.reidentifications += 1
+                    st.model, st.failures = None, 0
+                    st.mu = max(cfg.mu_init, cfg.mu_min)
+                    note = "no step lowered the cost at any sigma: " + (
+                        f"identifying with mirrored +du/-du pairs from now on (2 x {cfg.n_s * cfg.resolved_n_avg()} "
+                        "rollouts)"
+                        if change == "mirrored"
+                        else "identifying open loop, without pairs, from now on (the paper's experiment)"
                     )
                 elif st.mu > cfg.mu_max:
-                    stop = (Status.LINE_SEARCH_FAILED, _failure_message(cfg, st, ls, steps, nominal.cost, reidentify))
+                    stop = (
+                        Status.LINE_SEARCH_FAILED,
+                        _failure_message(cfg, st, ls, steps, nominal.cost, reidentify, escalate),
+                    )
                 else:
                     st.mu_retries += 1
                     note = f"no step lowered the cost: mu raised to {st.mu:.3g}, retrying"
@@ -382,6 +456,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                 key=key,
                 ls_key=jax.random.fold_in(key, 1),  # the forward passes' own noise stream
                 mu=max(cfg.mu_init, cfg.mu_min),
+                sigma=float(cfg.sigma),
+                mirrored=int(cfg.mirrored),
             )
             with CompileWatch() as watch0:
                 first = Policy(_initial_controls(u_init, dims), _on_device(np.zeros((dims.horizon, nZ))), st.gains)
@@ -434,20 +510,40 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
     return _result(method, env, dims, cfg, q, st, status, message, noisy, phase_s, compiles, total_watch, wall)
 
 
-def _failure_message(cfg, st, ls, steps, cost0: float, reidentify: int) -> str:
+def _failure_message(cfg, st, ls, steps, cost0: float, reidentify: int, escalated: bool) -> str:
     """Why the last (noiseless) line search failed, in the numbers it measured;
-    ``steps`` are its candidate step sizes."""
+    ``steps`` are its candidate step sizes; ``escalated``: the recovery also
+    changed the experiment (``_next_experiment``)."""
     expected = np.asarray(ls.expected)
     costs = np.where(np.isfinite(np.asarray(ls.costs)), np.asarray(ls.costs), np.inf)
     i = int(np.argmin(costs))
     tried = ", ".join(f"x {reidentify_scale(a):g}" for a in range(1, reidentify + 1))
     again = f" and {reidentify} re-identifications (sigma {tried})" if reidentify else ""
+    if escalated and _experiments_tried(st, cfg):
+        again += ", then the same with " + ", then ".join(_experiments_tried(st, cfg))
     change = f"changed the cost by {costs[i] - cost0:+.3g}" if np.isfinite(costs[i]) else "diverged"
     return (
         f"no step size lowered the cost after {st.streak} retries with growing regularisation{again}; "
         f"mu passed mu_max={cfg.mu_max:g}. The last model predicted a decrease of {expected[0]:.3g} for the full "
         f"step; the best candidate (alpha = {steps[i]:.3g}, predicted {expected[i]:.3g}) {change}"
     )
+
+
+def _next_experiment(st, closed_loop: bool):
+    """The state flag of the next experiment the recovery switches to, or None
+    when both are spent: mirrored pairs, then the open-loop (``plain``) identification
+    (where the solve identifies closed loop; pairs are dropped for it)."""
+    if not st.mirrored:
+        return "mirrored"
+    if closed_loop and not st.open_loop:
+        return "open_loop"
+    return None
+
+
+def _experiments_tried(st, cfg) -> list[str]:
+    """The experiments the recovery switched to in this solve (``_next_experiment``)."""
+    tried = [(st.mirrored and not cfg.mirrored, "mirrored +du/-du pairs"), (st.open_loop, "open-loop identification")]
+    return [name for flag, name in tried if flag]
 
 
 def _info(st: SolverState, iteration: int, accepted: bool, rollouts: int, wall: float, note: str) -> IterationInfo:
@@ -463,6 +559,7 @@ def _info(st: SolverState, iteration: int, accepted: bool, rollouts: int, wall: 
         wall_s=wall,
         true_cost=st.true_history[-1],
         note=note,
+        sigma=st.sigma_history[-1] if st.sigma_history else float("nan"),
     )
 
 
@@ -477,7 +574,7 @@ def _result(method, env, dims, cfg, q, st: SolverState, status, message, noisy, 
     if st.reidentifications:
         warnings.append(
             f"{st.reidentifications} times no step lowered the cost up to mu_max and the model was identified "
-            "afresh at another sigma"
+            "afresh at another sigma" + (" or in another experiment" if _experiments_tried(st, cfg) else "")
         )
     if st.mu_retries:
         warnings.append(
@@ -529,6 +626,10 @@ def _result(method, env, dims, cfg, q, st: SolverState, status, message, noisy, 
         reidentifications=st.reidentifications,
         warnings=list(env.model_notes) + warnings,  # options switched off for MJX (env.mjx_model_of)
         control_limits=np.stack([env.data.u_low, env.data.u_high], axis=1).tolist() if env.limited else [],
+        sigma_history=st.sigma_history,
+        sigma_units=actuator_units(env, cfg).tolist() if method == "pod-ilqr" else [],
+        mirrored=bool(st.mirrored and not st.open_loop) and method == "pod-ilqr",
+        open_loop=bool(st.open_loop) or (method == "pod-ilqr" and cfg.variant == "plain"),
     )
 
 

@@ -52,7 +52,7 @@ def test_resume_of_a_noiseless_solve_that_reuses_its_model(tmp_path):
     checkpointing after every iteration must carry it."""
     env = pj.make_task("cartpole-full", horizon=12)
     # open-loop identification with every direction fitted: this run rejects a step (the defaults do not)
-    cfg = pj.default_config(env, n_s=12, max_iterations=30, variant="plain", cap_rank=False)
+    cfg = pj.default_config(env, n_s=12, max_iterations=30, variant="plain", cap_rank=False, adapt_sigma=False)
     straight = pj.solve(env, cfg)
     assert straight.rejected_steps > 0, "the check needs a run with a rejected step"
     stop_at = straight.alpha_history.index(0.0) + 1  # just after the first rejection

@@ -73,7 +73,10 @@ def test_learnt_gains_control_as_well_as_the_exact_ones(task, horizon):
 
 def test_mirrored_solve_counts_pairs_and_chunks_alike():
     env = pj.make_task("pendulum-full", horizon=10)
-    cfg = pj.default_config(env, mirrored=True, n_s=8, max_iterations=2)
+    # At a fixed sigma the chunked batch gives the whole batch's costs bit for bit. With the adaptive
+    # scale the second iteration runs at sigma = 1e-4, where the two XLA programs agree to 1e-12
+    # (round-off) instead; the accounting and the chunking are what this checks.
+    cfg = pj.default_config(env, mirrored=True, n_s=8, max_iterations=2, adapt_sigma=False)
     whole = pj.solve(env, cfg)
     single = pj.solve(env, cfg.replace(mirrored=False))
     assert whole.rollouts - single.rollouts == whole.iterations * 8  # each of the 8 sequences also as -du

@@ -161,12 +161,14 @@ def test_cli_evaluate_runs_and_loads_the_saved_result(solved, tmp_path, capsys):
     out = tmp_path / "ev"
     argv = [
         "evaluate", path, "--noise", "0,0.2", "--episodes", "8", "--replan-episodes", "1",
-        "--replan-iterations", "1", "--no-estimator", "--out", str(out),
+        "--replan-iterations", "1", "--no-estimator", "--measurement-ratio", "0", "--out", str(out),
     ]  # fmt: skip
     assert main(argv) == 0
     assert "| noise level |" in capsys.readouterr().out
-    rows = json.loads((out / "evaluate.json").read_text())["rows"]
+    report = json.loads((out / "evaluate.json").read_text())
+    rows = report["rows"]
     assert {r["controller"] for r in rows} == {"open_loop", "closed_loop", "replan", "model_based"}
+    assert report["settings"]["measurement_ratio"] == 0 and all(max(r["measurement_std"]) == 0 for r in rows)
 
 
 @pytest.mark.parametrize(
@@ -175,6 +177,7 @@ def test_cli_evaluate_runs_and_loads_the_saved_result(solved, tmp_path, capsys):
         (["--noise", "0,abc"], "--noise expects comma-separated noise levels"),
         (["--noise", "-0.1"], "Noise levels must be finite numbers >= 0"),
         (["--episodes", "0"], "`episodes` must be an integer >= 1"),
+        (["--measurement-ratio", "-1"], "`measurement_ratio` must be >= 0"),
         (["--replan-every", "10"], "`replan_every` must be an integer in 1 .. horizon-1 = 9"),
         (["--task", "cartpole-partial"], "observes 1 number.*observes 2"),
     ],

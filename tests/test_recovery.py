@@ -27,7 +27,7 @@ def pendulum():
 def test_a_failed_line_search_reidentifies_before_it_stops(pendulum):
     # The paper's open-loop identification with every direction fitted: the defaults (closed loop, the
     # rank cap) converge at sigma = 1 on this task, and the check needs a line search that fails.
-    settings = dict(sigma=1.0, n_s=8, max_iterations=200, variant="plain", cap_rank=False)
+    settings = dict(sigma=1.0, n_s=8, max_iterations=200, variant="plain", cap_rank=False, adapt_sigma=False)
     gave_up = pj.solve(pendulum, pj.default_config(pendulum, reidentify=0, **settings))
     assert gave_up.status == pj.Status.LINE_SEARCH_FAILED
     assert gave_up.reidentifications == 0
@@ -50,3 +50,32 @@ def test_model_based_solves_never_reidentify(pendulum):
 def test_reidentify_must_be_a_count(pendulum):
     with pytest.raises(pj.ConfigError, match="reidentify"):
         pj.solve(pendulum, pj.default_config(pendulum, reidentify=-1))
+
+
+def test_when_every_scale_fails_the_solve_changes_the_experiment(pendulum):
+    # mu_max at mu_min: every rejected step ends in a re-identification, so the scales are soon spent.
+    settings = dict(sigma=1.0, n_s=8, max_iterations=200, cap_rank=False, adapt_sigma=False, mu_max=1e-6, reidentify=1)
+    gave_up = pj.solve(pendulum, pj.default_config(pendulum, escalate=False, **settings))
+    assert gave_up.status == pj.Status.LINE_SEARCH_FAILED and not gave_up.mirrored
+    notes = []
+    went_on = pj.solve(pendulum, pj.default_config(pendulum, **settings), callback=lambda info: notes.append(info.note))
+    n = len(gave_up.cost_history) - 1
+    assert went_on.cost_history[:n] == gave_up.cost_history[:n]  # the same solve until the switch
+    assert went_on.mirrored and any("mirrored +du/-du pairs from now on" in note for note in notes)
+    assert any("or in another experiment" in w for w in went_on.warnings)
+    # noiseless, an accepted step only lowers the cost: going on cannot end above where the other stopped
+    assert went_on.final_cost <= gave_up.final_cost
+    assert went_on.rollouts > gave_up.rollouts
+
+
+def test_the_experiments_of_the_recovery_come_in_order():
+    from podilqr_jax.checkpoint import SolverState
+    from podilqr_jax.solver import _next_experiment
+
+    st = SolverState(iteration=0, nominal=None, gains=None, model=None, back_k=None, key=None, ls_key=None, mu=1.0)
+    assert _next_experiment(st, closed_loop=True) == "mirrored"
+    st.mirrored = 1
+    assert _next_experiment(st, closed_loop=True) == "open_loop"
+    assert _next_experiment(st, closed_loop=False) is None  # already open loop: nothing left
+    st.open_loop = 1
+    assert _next_experiment(st, closed_loop=True) is None

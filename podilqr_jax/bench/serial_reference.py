@@ -293,9 +293,16 @@ def line_search(task: Task, nominal: Nominal, gains: Gains, cfg: pj.SolverConfig
 
 
 # --------------------------------------------------------------------- driver
-PAPER_SETTINGS = {"variant": "plain", "cap_rank": False}
+PAPER_SETTINGS = {
+    "variant": "plain",
+    "cap_rank": False,
+    "adapt_sigma": False,
+    "sigma_scale": "absolute",
+    "escalate": False,
+}
 """The settings that make ``podilqr_jax.solve`` the algorithm this reference
-implements: the paper's open-loop identification, every direction above rcond."""
+implements: the paper's open-loop identification, every direction above rcond,
+one fixed sigma, no switch to mirrored pairs."""
 
 
 def serial_solve(
@@ -324,11 +331,12 @@ def serial_solve(
     t_start = time.perf_counter()
     cfg = pj.default_config(env) if cfg is None else cfg
     q = cfg.validate(env, data_based=True)
-    if env.noisy or cfg.variant != "plain" or cfg.estimator != "ols" or cfg.cap_rank or cfg.mirrored:
+    differs = {k: getattr(cfg, k) for k, v in PAPER_SETTINGS.items() if getattr(cfg, k) != v}
+    if env.noisy or cfg.estimator != "ols" or cfg.mirrored or differs:
         raise ValueError(
-            "serial_solve is the noiseless plain POD-iLQR with least squares on every direction above rcond; "
-            f"got noisy={env.noisy}, variant={cfg.variant!r}, estimator={cfg.estimator!r}, "
-            f"cap_rank={cfg.cap_rank}, mirrored={cfg.mirrored} (use PAPER_SETTINGS)."
+            "serial_solve is the noiseless plain POD-iLQR with least squares on every direction above rcond, "
+            f"at one fixed sigma; got noisy={env.noisy}, estimator={cfg.estimator!r}, mirrored={cfg.mirrored}, "
+            f"{differs} (use PAPER_SETTINGS)."
         )
     task = make_serial_task(env, q)
     rng = np.random.default_rng(cfg.seed)
