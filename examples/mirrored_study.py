@@ -41,7 +41,8 @@ def noisy_rows(seeds: int, systems) -> list[dict]:
         clean = pj.make_task(name, horizon=HORIZON)
         optimum = pj.solve_model_based(clean, pj.default_config(clean, max_iterations=500)).final_cost
         env = pj.make_task(name, horizon=HORIZON, noise=NoiseModel.paper(PAPER_S0, partial=True))
-        base = pj.default_config(env, max_iterations=ITERATIONS[system])
+        # the study's noiseless row at the same sigma as the noisy ones (as `podilqr reproduce`)
+        base = pj.default_config(env, max_iterations=ITERATIONS[system], adapt_sigma=False, escalate=False)
         for variant in VARIANTS:
             for label, extra in (
                 ("least squares", {}),

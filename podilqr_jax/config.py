@@ -17,13 +17,16 @@ from .estimators import ESTIMATORS, n_instruments
 from .info_state import n_regressors
 
 IMPLS = ("jax", "warp")
-SIGMA_SCALES = ("actuator", "absolute")
 """MJX's implementations a solve can run its rollouts on (``SolverConfig.impl``):
 ``jax`` (the default, any device) and ``warp`` (NVIDIA Warp kernels, on a CUDA
 GPU or the CPU; needs ``warp-lang``: ``pip install 'podilqr_jax[cuda]'``).
 MJX 3.17 also has ``cpp`` (MuJoCo's C engine as a JAX call), which its
 ``make_data`` ties to host-side references that a jitted, vmapped rollout
 cannot carry; it is not offered."""
+
+SIGMA_SCALES = ("actuator", "absolute")
+"""The units of ``SolverConfig.sigma``: each actuator's half ctrlrange where it
+is limited (``actuator``), or one sigma for every actuator (``absolute``)."""
 
 VARIANTS = ("plain", "feedback", "averaged", "nominal")
 """The paper's variants (docs/noise.md):
