@@ -3,8 +3,8 @@
 About a swinging nominal (u = 0.3 sin(0.3 t)) of a task, 40 sysid rollouts
 at each sigma, least squares with the rank cap; prints rho (RMS of the fit
 residual over the RMS of the response, all steps) and the round-off estimate
-that ``adapt_sigma`` compares it with (eps x the nominal's RMS over the
-response's RMS; ``config.adapted_sigma``). Curvature makes rho grow like
+that ``adapt_sigma`` compares it with (``sysid.fit_residual``, the numbers
+the solver reads; ``config.adapted_sigma``). Curvature makes rho grow like
 sigma (like sigma^2 with ``--mirrored``), round-off like 1 / sigma.
 
     python examples/fit_residual.py [TASK or task file] [--mirrored]   # default: dm_control's cart-pole
@@ -20,7 +20,7 @@ import numpy as np
 import podilqr_jax as pj
 from podilqr_jax.info_state import info_dim
 from podilqr_jax.rollout import open_loop_policy, perturbation_rollouts
-from podilqr_jax.sysid import excited_rank
+from podilqr_jax.sysid import excited_rank, fit_residual
 from podilqr_jax.taskfile import load_task
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -41,7 +41,6 @@ def main() -> None:
     zero = jnp.zeros((dims.horizon, dims.nu))
     nominal = pj.rollout_batch(dims, q, data, open_loop_policy(u_bar, nZ), zero, zero, record_state=True)
     z_bar, u_nom = (jnp.zeros_like(nominal.z), jnp.zeros_like(nominal.u)) if args.mirrored else (nominal.z, nominal.u)
-    level = float(np.sqrt(np.mean(np.asarray(nominal.z) ** 2)))
     print("| sigma | rho | round-off estimate | rho / estimate |\n|---|---|---|---|")
     for sigma in SIGMAS:
         traj = perturbation_rollouts(
@@ -51,9 +50,7 @@ def main() -> None:
         _, report = pj.fit_information_model(
             traj.z, traj.u, z_bar, u_nom, q, jnp.asarray(1e-10), jnp.asarray(excited_rank(dims, q))
         )
-        res, target = np.asarray(report.residual_rms), np.asarray(report.target_rms)
-        rho = np.sqrt(np.sum(res**2) / np.sum(target**2))
-        floor = np.finfo(target.dtype).eps * level / np.sqrt(np.mean(target**2))
+        rho, floor = fit_residual(report, nominal.z)
         print(f"| {sigma:g} | {rho:.2g} | {floor:.2g} | {rho / floor:.3g} |")
 
 

@@ -35,6 +35,7 @@ from .backward import QuadraticCost as QuadraticCost
 from .backward import backward_pass as backward_pass
 from .cache import CacheInfo as CacheInfo
 from .cache import cache_info as cache_info
+from .config import PAPER_SETTINGS as PAPER_SETTINGS
 from .config import VARIANTS as VARIANTS
 from .config import SolverConfig as SolverConfig
 from .env import Env as Env
@@ -107,6 +108,7 @@ __all__ = [
     "Result",
     "SolverConfig",
     "Status",
+    "PAPER_SETTINGS",
     "TASKS",
     "TaskError",
     "Trajectory",

@@ -28,6 +28,20 @@ SIGMA_SCALES = ("actuator", "absolute")
 """The units of ``SolverConfig.sigma``: each actuator's half ctrlrange where it
 is limited (``actuator``), or one sigma for every actuator (``absolute``)."""
 
+PAPER_SETTINGS = {
+    "variant": "plain",
+    "cap_rank": False,
+    "adapt_sigma": False,
+    "sigma_scale": "absolute",
+    "escalate": False,
+}
+"""The settings that make ``solve`` the paper's POD-iLQR as is (and the
+defaults before the robustness work): open-loop identification, every
+direction above rcond, one fixed sigma for every actuator, no change of
+experiment before ``line_search_failed``. The serial reference
+(``bench.serial_reference``), the benchmark of what the defaults cost
+(``bench.defaults_cost``) and the paper's study (``reproduce``) use them."""
+
 VARIANTS = ("plain", "feedback", "averaged", "nominal")
 """The paper's variants (docs/noise.md):
 

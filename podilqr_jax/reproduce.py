@@ -33,6 +33,7 @@ from typing import Callable, Optional, Sequence
 import jax
 import numpy as np
 
+from .config import PAPER_SETTINGS
 from .noise import NoiseModel
 from .plots import agg_pyplot
 from .result import write_json_atomic
@@ -46,9 +47,10 @@ PANELS = (
 # Study rows that are not a plain ``variant``: the instrumental-variables
 # estimator (docs/estimators.md), with feedback in the sysid rollouts, n_avg = 1.
 ROW_SETTINGS = {"iv": dict(variant="feedback", estimator="iv")}
-PAPER_NOISELESS = dict(adapt_sigma=False, cap_rank=False, escalate=False)
-"""What the study's noiseless rows run as in the paper: one fixed sigma, every
-direction above rcond, no change of experiment (noisy solves ignore these)."""
+PAPER_NOISELESS = {k: v for k, v in PAPER_SETTINGS.items() if k != "variant"}
+"""What the study's noiseless rows run as in the paper, the variant aside
+(``config.PAPER_SETTINGS``): one fixed sigma, every direction above rcond, no
+change of experiment (noisy solves ignore these)."""
 SYSTEMS = ("pendulum", "cartpole")
 SWEEP_FACTORS = (0.1, 0.3, 1.0, 3.0)
 LABELS = {

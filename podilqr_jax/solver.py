@@ -50,7 +50,7 @@ from .rollout import (
     perturbation_rollouts,
     replicated,
 )
-from .sysid import excited_rank, fit_information_model
+from .sysid import excited_rank, fit_information_model, fit_residual
 
 Callback = Callable[[IterationInfo], None]
 
@@ -161,13 +161,10 @@ def solve(
                 "so the fit sees no dynamics: raise sigma (or use float64, see docs/algorithm.md)",
             )
         following = None
-        res, target = (np.asarray(report.residual_rms), np.asarray(report.target_rms)) if adapt else (0, 0)
-        if adapt and stop is None and np.all(np.isfinite(res)) and np.sum(target**2) > 0:
-            response = float(np.sqrt(np.mean(target**2)))
-            rho = float(np.sqrt(np.sum(res**2) / np.sum(target**2)))
-            level = float(np.sqrt(np.mean(np.asarray(nominal.z_bar) ** 2)))
-            floor = float(np.finfo(target.dtype).eps) * level / response
-            following = adapted_sigma(sigma, rho, floor, 2 if mirrored else 1, cfg)
+        if adapt and stop is None:
+            rho, floor = fit_residual(report, nominal.z_bar)
+            if np.isfinite(rho):
+                following = adapted_sigma(sigma, rho, floor, 2 if mirrored else 1, cfg)
         t2 = time.perf_counter()
         rollouts = cfg.n_s * n_avg * (2 if mirrored else 1)
         return model, stop, rollouts, n_bad, {"rollouts": t1 - t0, "fit": t2 - t1}, following
@@ -408,9 +405,8 @@ def _iterate(method, env, dims, data, cfg, q, identify, u_init, callback, noisy,
                         f"no step lowered the cost up to mu_max: re-identifying with fresh perturbations at "
                         f"sigma = {st.sigma * reidentify_scale(st.reidentified):.3g}"
                     )
-                elif st.mu > cfg.mu_max and escalate and _next_experiment(st, closed_loop) is not None:
+                elif st.mu > cfg.mu_max and escalate and (change := _next_experiment(st, closed_loop)) is not None:
                     # The scales are spent: another experiment for the rest of the solve, the scales afresh.
-                    change = _next_experiment(st, closed_loop)
                     setattr(st, change, 1)
                     st.reidentified = 0
                     st.reidentifications += 1

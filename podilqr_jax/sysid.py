@@ -61,6 +61,21 @@ class FitReport(NamedTuple):
     n_bad: jnp.ndarray  # scalar int: rollouts with a non-finite number, left out of the fit
 
 
+def fit_residual(report: FitReport, z_bar) -> tuple[float, float]:
+    """On the host: (rho, floor) of a fit. rho is the RMS of the residual over
+    the RMS of the response, all steps; floor the round-off's expected share of
+    it, eps x the RMS of the nominal's observations ``z_bar`` over the RMS of
+    the response (what ``config.adapted_sigma`` weighs; docs/robustness.md).
+    Both NaN where the response is zero or the residual not finite."""
+    res, target = np.asarray(report.residual_rms), np.asarray(report.target_rms)
+    power = float(np.sum(target**2))
+    if power == 0.0 or not np.all(np.isfinite(res)):
+        return float("nan"), float("nan")
+    response = float(np.sqrt(power / target.size))
+    level = float(np.sqrt(np.mean(np.asarray(z_bar) ** 2)))
+    return float(np.sqrt(np.sum(res**2) / power)), float(np.finfo(target.dtype).eps) * level / response
+
+
 def excited_rank(dims, q: int) -> np.ndarray:
     """[T] the most directions the sysid data can excite at each step t from a
     fixed start state, noiseless: min(q (nz + nu), nu (t + 1), 2 nv + q nu)

@@ -2,9 +2,9 @@
 
 For each task, the model-based reference gives the optimum J*; then
 POD-iLQR runs twice in this process, with the settings before the robust
-defaults (``BEFORE``: the paper's open-loop identification, every direction
-above rcond, one fixed sigma in absolute units, no change of experiment on
-failure, feedback on saturated controls) and with today's defaults. Each row
+defaults (``BEFORE``, ``config.PAPER_SETTINGS``: the paper's open-loop
+identification, every direction above rcond, one fixed sigma in absolute
+units, no change of experiment on failure) and with today's defaults. Each row
 reports the rollouts per iteration, the iterations, rollouts and seconds until
 the nominal cost first comes within 1.001 x J* (``null`` if it never does), the
 final ratio and the compile time. The solves run one after the other in
@@ -25,14 +25,7 @@ import podilqr_jax as pj
 
 from .report import emit
 
-BEFORE = {
-    "variant": "plain",
-    "cap_rank": False,
-    "adapt_sigma": False,
-    "sigma_scale": "absolute",
-    "escalate": False,
-    "saturated_open_loop": False,
-}
+BEFORE = pj.PAPER_SETTINGS
 TARGET = 1.001
 
 

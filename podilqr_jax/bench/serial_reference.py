@@ -293,16 +293,9 @@ def line_search(task: Task, nominal: Nominal, gains: Gains, cfg: pj.SolverConfig
 
 
 # --------------------------------------------------------------------- driver
-PAPER_SETTINGS = {
-    "variant": "plain",
-    "cap_rank": False,
-    "adapt_sigma": False,
-    "sigma_scale": "absolute",
-    "escalate": False,
-}
+PAPER_SETTINGS = pj.PAPER_SETTINGS
 """The settings that make ``podilqr_jax.solve`` the algorithm this reference
-implements: the paper's open-loop identification, every direction above rcond,
-one fixed sigma, no switch to mirrored pairs."""
+implements (``config.PAPER_SETTINGS``)."""
 
 
 def serial_solve(
