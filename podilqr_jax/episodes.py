@@ -29,6 +29,7 @@ from .cost import batch_costs
 from .env import EnvData, EnvDims
 from .policy import Controller, FeedbackPolicy, control, initial_estimate, next_estimate
 from .rollout import observe, physics_step, state_of, with_state
+from .xla_options import jit
 
 
 class EpisodeNoise(NamedTuple):
@@ -111,7 +112,7 @@ def _summarise(data: EnvData, z, u, x) -> Episodes:
     return Episodes(cost, jnp.where(jnp.isfinite(error), error, jnp.inf), z, u, x)
 
 
-@functools.partial(jax.jit, static_argnames=("dims", "episodes"))
+@jit(static_argnames=("dims", "episodes"))
 def run_episodes(
     dims: EnvDims, data: EnvData, policy: FeedbackPolicy, key: jax.Array, levels: EpisodeNoise, episodes: int
 ) -> Episodes:
@@ -124,7 +125,7 @@ def run_episodes(
     return _summarise(data, z, u, x)
 
 
-@functools.partial(jax.jit, static_argnames=("dims",))
+@jit(static_argnames=("dims",))
 def run_segment(dims: EnvDims, data: EnvData, policy: FeedbackPolicy, limits, x_start, w, v, a):
     """One segment per episode: ``policy`` holds one controller per episode
     (leading axis E on every array), run from x_start [E, nx] for w.shape[1]

@@ -188,7 +188,7 @@ def solve_model_based(
     """The model-based reference: iLQR with exact MJX Jacobians on the full state.
 
     Same task, cost, backward pass, line search and stopping rules as
-    :func:`solve`; the identification is replaced by ``jax.jacfwd`` through
+    :func:`solve`; the identification is replaced by forward-mode derivatives through
     ``mjx.step``. The data-based settings (``q``, ``n_s``, ``sigma``) are unused.
     """
     cfg = default_config(env) if cfg is None else cfg

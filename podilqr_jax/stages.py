@@ -43,7 +43,7 @@ from typing import Any, Callable, Optional, Sequence
 import jax
 import numpy as np
 
-from . import cache
+from . import cache, xla_options
 
 FOLDER_NAME = "podilqr-stages"
 fallbacks: dict[str, str] = {}  # stage name -> why it runs as a plain jit (the last refusal)
@@ -97,7 +97,7 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
     _register_outputs(outputs)
 
     def wrap(fun: Callable) -> Callable:
-        jitted = jax.jit(fun, static_argnames=static_argnames)
+        jitted = xla_options.jit(fun, static_argnames=static_argnames)
         signature = inspect.signature(fun)
         name = f"{fun.__module__}.{fun.__qualname__}"
         runners: dict[Any, Callable] = {}
@@ -196,7 +196,7 @@ def _runner(name, fun, jitted, where, static, treedef, avals) -> Callable:
             exported = jax.export.export(jax.jit(flat))(*specs)
             _write(where, path, exported.serialize())
             counts["exported"] += 1
-        return jax.jit(exported.call)
+        return xla_options.jit(exported.call)
     except Exception as exc:  # noqa: BLE001 - any refusal means: run it as a plain jit
         fallbacks[name] = f"{type(exc).__name__}: {exc}"[:500]
         return jitted
