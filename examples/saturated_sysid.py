@@ -22,10 +22,10 @@ import numpy as np
 import podilqr_jax as pj
 from podilqr_jax.backward import QuadraticCost, Regularisation, backward_pass
 from podilqr_jax.checkpoint import fingerprint, load_checkpoint
+from podilqr_jax.identification import _unsaturated_gains
 from podilqr_jax.info_state import observation_selector
 from podilqr_jax.line_search import line_search
 from podilqr_jax.rollout import Policy, perturbation_rollouts
-from podilqr_jax.solver import _unsaturated_gains
 from podilqr_jax.sysid import excited_rank, fit_information_model
 from podilqr_jax.taskfile import load_task
 

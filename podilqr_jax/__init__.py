@@ -76,6 +76,7 @@ from .rollout import simulate as simulate
 from .solver import default_config as default_config
 from .solver import solve as solve
 from .solver import solve_model_based as solve_model_based
+from .state import Record as Record
 from .sysid import LinearModel as LinearModel
 from .sysid import fit_information_model as fit_information_model
 from .tasks import TASKS as TASKS
@@ -105,6 +106,7 @@ __all__ = [
     "PodIlqrError",
     "PolicyState",
     "QuadraticCost",
+    "Record",
     "Result",
     "SolverConfig",
     "Status",

@@ -1,13 +1,12 @@
-"""The solver's state between iterations, and checkpoints of it on disk.
+"""Checkpoints of the solver's state on disk.
 
 Everything the outer loop carries from one iteration to the next is a
-:class:`SolverState`: the nominal (u_bar, its measured rollout and information
-states), the gains of the current policy, the identified model when the next
-iteration reuses it (after a rejected noiseless step), the regularisation mu
-and its failure count, both PRNG keys, the counters and every history. Saving
-it after an iteration and loading it gives the driver exactly what it had, so
-a resumed solve takes the same steps, bit for bit, as one that never stopped
-(same machine, same task and settings).
+:class:`~podilqr_jax.state.SolverState` (``state``): the nominal, the gains
+of the current policy, the identified model when the next iteration reuses
+it, the regularisation, both PRNG keys, the driver's bookkeeping and the
+record of counters and histories. Saving it after an iteration and loading it
+gives the driver exactly what it had, so a resumed solve takes the same steps,
+bit for bit, as one that never stopped (same machine, same task and settings).
 
 A checkpoint is one file, ``DIR/checkpoint.npz``: the arrays and a JSON header
 (format version, the fingerprint of the task and settings, the scalars and
@@ -24,109 +23,28 @@ import hashlib
 import json
 import os
 import tempfile
-from typing import Any, Optional
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
 from .errors import ConfigError
+from .state import Nominal, Record, SolverState
 from .sysid import LinearModel
 
 FILE = "checkpoint.npz"
-FORMAT = 2  # 2: the sysid scale, its history and the mirrored switch
+FORMAT = 3  # 2: the sysid scale, its history and the mirrored switch; 3: the record under the result's names
+READABLE = (2, 3)
+# format 2 wrote the record's fields flat, under the driver's old names
+_FORMAT_2_NAMES = {
+    "iteration": "iterations",
+    "rejected": "rejected_steps",
+    "longest_streak": "longest_rejection_streak",
+    "true_history": "true_cost_history",
+    "open_history": "open_loop_cost_history",
+    "grad_history": "grad_norm_history",
+}
 _RESUMABLE_CHANGES = ("max_iterations",)
-
-
-@dataclasses.dataclass
-class Nominal:
-    """The nominal trajectory: controls and their measured rollout."""
-
-    u_bar: jnp.ndarray  # [T, nu]
-    z_bar: jnp.ndarray  # [T+1, nz] (as measured)
-    x_bar: jnp.ndarray  # [T+1, nx]
-    Z_bar: jnp.ndarray  # [T+1, nZ]
-    cost: float
-
-    @classmethod
-    def measured(cls, ls) -> "Nominal":
-        """The line search's chosen rollout as the new nominal."""
-        return cls(ls.trajectory.u, ls.trajectory.z, ls.trajectory.x, ls.Z, float(ls.cost))
-
-
-@dataclasses.dataclass
-class SolverState:
-    """What the outer loop carries between iterations (host scalars, device arrays)."""
-
-    iteration: int  # iterations completed
-    nominal: Nominal
-    gains: jnp.ndarray  # K of the current policy [T, nu, nZ]
-    model: Optional[LinearModel]  # reused by the next iteration when not None
-    back_k: Optional[jnp.ndarray]  # the last backward pass's k [T, nu]
-    key: jnp.ndarray  # sysid PRNG key
-    ls_key: jnp.ndarray  # line-search PRNG key
-    mu: float
-    sigma: float = float("nan")  # the sysid scale (adapted with cfg.adapt_sigma) before re-identification factors
-    mirrored: int = 0  # 1 once the identification runs mirrored pairs (configured, or a recovery)
-    open_loop: int = 0  # 1 once a recovery switched a closed-loop identification to open loop
-    failures: int = 0  # consecutive rejected steps (mu grows by factor^failures)
-    rejected: int = 0
-    remeasured: int = 0
-    streak: int = 0
-    longest_streak: int = 0
-    rollouts: int = 0
-    diverged_rollouts: int = 0  # sysid rollouts left out of the fit (non-finite)
-    diverged_candidates: int = 0  # line-search candidates rejected as non-finite
-    mu_retries: int = 0  # backward passes redone with a larger mu after a rejected step
-    reidentified: int = 0  # re-identifications since the last accepted step (sets the sigma scale)
-    reidentifications: int = 0  # in all
-    stopped: Optional[list] = None  # [status, message] once a stopping rule fired
-    cost_history: list = dataclasses.field(default_factory=list)
-    true_history: list = dataclasses.field(default_factory=list)
-    open_history: list = dataclasses.field(default_factory=list)
-    alpha_history: list = dataclasses.field(default_factory=list)
-    mu_history: list = dataclasses.field(default_factory=list)
-    grad_history: list = dataclasses.field(default_factory=list)
-    sigma_history: list = dataclasses.field(default_factory=list)  # the sigma of every identification
-
-    _COUNTERS = (
-        "iteration",
-        "failures",
-        "rejected",
-        "remeasured",
-        "streak",
-        "longest_streak",
-        "rollouts",
-        "diverged_rollouts",
-        "diverged_candidates",
-        "mu_retries",
-        "reidentified",
-        "reidentifications",
-        "mirrored",
-        "open_loop",
-    )
-    _HISTORIES = (
-        "cost_history",
-        "true_history",
-        "open_history",
-        "alpha_history",
-        "mu_history",
-        "grad_history",
-        "sigma_history",
-    )
-
-    def snapshot(self) -> "SolverState":
-        """A shallow copy of the state at an iteration boundary, in O(1): arrays
-        are immutable and the histories only grow, so their lengths are kept
-        and ``restored`` cuts the shared lists back to them."""
-        copy = dataclasses.replace(self)
-        copy._lengths = {name: len(getattr(self, name)) for name in self._HISTORIES}
-        return copy
-
-    def restored(self) -> "SolverState":
-        """This snapshot, its histories cut back to their length when it was taken."""
-        for name, n in self._lengths.items():
-            del getattr(self, name)[n:]
-        return self
 
 
 def fingerprint(method: str, env, dims, cfg) -> dict[str, Any]:
@@ -171,11 +89,8 @@ def save_checkpoint(directory: str | os.PathLike, state: SolverState, print_: di
         "format": FORMAT,
         "fingerprint": print_,
         "nominal_cost": n.cost,
-        "mu": state.mu,
-        "sigma": state.sigma,
-        "stopped": state.stopped,
-        **{name: getattr(state, name) for name in SolverState._COUNTERS},
-        **{name: getattr(state, name) for name in SolverState._HISTORIES},
+        **{name: getattr(state, name) for name in SolverState.SCALARS},
+        "record": state.record.as_dict(),
     }
     arrays = {k: np.asarray(v) for k, v in arrays.items()}
     arrays["header"] = np.array(json.dumps(header, allow_nan=True))
@@ -210,8 +125,11 @@ def load_checkpoint(path: str | os.PathLike, expected: dict[str, Any], to_device
         header = json.loads(str(arrays.pop("header")))
     except (OSError, ValueError, KeyError) as exc:
         raise ConfigError(f"The checkpoint {file!r} cannot be read ({exc}); it is not a podilqr checkpoint.") from None
-    if header.get("format") != FORMAT:
-        raise ConfigError(f"The checkpoint {file!r} has format {header.get('format')!r}; this version reads {FORMAT}.")
+    if header.get("format") not in READABLE:
+        raise ConfigError(
+            f"The checkpoint {file!r} has format {header.get('format')!r}; this version reads "
+            f"{', '.join(map(str, READABLE))}."
+        )
     saved = header["fingerprint"]
     if saved != expected:
         diff = sorted(k for k in set(saved) | set(expected) if saved.get(k) != expected.get(k))
@@ -230,20 +148,21 @@ def load_checkpoint(path: str | os.PathLike, expected: dict[str, Any], to_device
 
     model = LinearModel(dev("A"), dev("B")) if "A" in arrays else None
     nominal = Nominal(dev("u_bar"), dev("z_bar"), dev("x_bar"), dev("Z_bar"), float(header["nominal_cost"]))
+    if header["format"] == 2:
+        header["record"] = {_FORMAT_2_NAMES.get(k, k): v for k, v in header.items()}
     state = SolverState(
-        iteration=0,
         nominal=nominal,
         gains=dev("gains"),
-        model=model,
-        back_k=dev("back_k") if "back_k" in arrays else None,
         key=jnp.asarray(arrays["key"]),
         ls_key=jnp.asarray(arrays["ls_key"]),
         mu=float(header["mu"]),
-        sigma=float(header["sigma"]),
-        stopped=header.get("stopped"),
+        model=model,
+        back_k=dev("back_k") if "back_k" in arrays else None,
+        record=Record.from_dict(header["record"]),
     )
-    for name in SolverState._COUNTERS:
-        setattr(state, name, int(header[name]))
-    for name in SolverState._HISTORIES:
-        setattr(state, name, [float("nan") if v is None else float(v) for v in header[name]])
+    for name in SolverState.SCALARS:
+        if name in ("mu", "stopped"):
+            continue
+        setattr(state, name, type(getattr(state, name))(header[name]))
+    state.stopped = header.get("stopped")
     return state

@@ -49,10 +49,13 @@ import numpy as np
 from .config import SolverConfig
 from .env import Env
 from .errors import ConfigError
+from .identification import Experiment, data_based
 from .info_state import info_dim
 from .policy import FeedbackPolicy
-from .rollout import open_loop_policy, perturbation_rollouts, rollout_batch
-from .sysid import LinearModel, fit_information_model
+from .result import Status
+from .rollout import on_device, open_loop_policy, rollout_batch
+from .state import Nominal
+from .sysid import LinearModel
 
 # Added to every covariance so that the innovation covariance is invertible
 # when a noise is switched off (relative to 1, the scale of the states).
@@ -115,16 +118,18 @@ def identify_about_nominal(
     q = policy.q
     n_s = n_s or max(cfg.n_s, 4 * info_dim(dims.nz, dims.nu, q) + 4 * dims.nu)
     ctrl = policy.controller
-    nZ = policy.info_dim
-    nominal = open_loop_policy(ctrl.u_bar, nZ)
+    # one open-loop identification, the noise off, sigma in absolute units, the plain least-squares fit
+    settings = cfg.replace(
+        n_s=n_s, n_avg=1, variant="plain", estimator="ols", cap_rank=False, adapt_sigma=False, sigma_scale="absolute"
+    )
+    identify = data_based(env, settings, q, on_device(env.data), noisy=False)
     zero = jnp.zeros_like(ctrl.u_bar)
-    base = rollout_batch(dims, q, env.data, nominal, zero, zero)
-    key = jax.random.PRNGKey(seed)
-    traj = perturbation_rollouts(dims, q, n_s, env.data, nominal, key, jnp.asarray(cfg.sigma), noisy=False)
-    model, report = fit_information_model(traj.z, traj.u, base.z, ctrl.u_bar, q, jnp.asarray(cfg.rcond))
-    if not bool(report.all_finite):
+    base = rollout_batch(dims, q, env.data, open_loop_policy(ctrl.u_bar, policy.info_dim), zero, zero)
+    nominal = Nominal(ctrl.u_bar, base.z, None, jnp.zeros((dims.horizon + 1, policy.info_dim)), float("nan"))
+    found = identify(jax.random.PRNGKey(seed), nominal, None, cfg.sigma, Experiment())
+    if found.n_bad or (found.stop is not None and found.stop.status == Status.NONFINITE):
         raise ConfigError("The estimator's identification rollouts are not finite; lower the solve's sigma.")
-    return model
+    return found.model
 
 
 def estimator_policy(

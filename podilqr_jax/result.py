@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from .state import Record
+
 
 class Status(str, enum.Enum):
     """Why a solve stopped."""
@@ -55,6 +57,9 @@ class Result:
     last backward pass's feed-forward step. ``states`` are the nominal's full
     MuJoCo states [T+1, nq + nv] and ``observations`` their noise-free C x.
 
+    The counters and histories are ``record`` (a :class:`~podilqr_jax.state.Record`),
+    held as the solve counted them and read as attributes of the result too
+    (``result.cost_history`` is ``result.record.cost_history``).
     ``cost_history`` is the cost the algorithm sees (under noise: the cost of
     a noisy nominal). ``true_cost_history`` is the policy's cost run closed
     loop on the noiseless system and ``open_loop_cost_history`` the nominal
@@ -74,12 +79,7 @@ class Result:
     K: np.ndarray  # [T, nu, nZ]
     k: np.ndarray  # [T, nu]
     q: int
-    cost_history: list[float]  # nominal cost before iteration 1, then after each
-    alpha_history: list[float]
-    mu_history: list[float]
-    grad_norm_history: list[float]
-    iterations: int
-    rollouts: int
+    record: Record  # the counters and histories (iterations, rollouts, cost_history, ...)
     wall_s: float
     compile_s: float
     run_s: float
@@ -92,22 +92,17 @@ class Result:
     variant: str = "plain"
     noisy: bool = False
     noise: dict[str, float] = dataclasses.field(default_factory=dict)
-    true_cost_history: list[float] = dataclasses.field(default_factory=list)
-    open_loop_cost_history: list[float] = dataclasses.field(default_factory=list)
-    rejected_steps: int = 0
-    remeasured: int = 0
-    longest_rejection_streak: int = 0
-    diverged_rollouts: int = 0  # sysid rollouts left out of the fit as non-finite
-    diverged_candidates: int = 0  # line-search candidates rejected as non-finite
-    mu_retries: int = 0  # backward passes redone with a larger mu after a rejected step
-    reidentifications: int = 0  # fresh identifications at another sigma after no step lowered the cost
     warnings: list[str] = dataclasses.field(default_factory=list)  # also the options switched off for MJX
     control_limits: list = dataclasses.field(default_factory=list)  # [nu][low, high] ctrlrange; [] when unlimited
-    # per iteration, the sysid scale of the model it used (times sigma_units per actuator; cfg.adapt_sigma)
-    sigma_history: list = dataclasses.field(default_factory=list)
     sigma_units: list = dataclasses.field(default_factory=list)  # [nu] (cfg.sigma_scale)
     mirrored: bool = False  # the identification ran mirrored pairs at the end (cfg.mirrored or a recovery)
     open_loop: bool = False  # ... and open loop (variant plain, or a recovery switched to it)
+
+    def __getattr__(self, name: str):
+        """The record's counters and histories as attributes of the result."""
+        if name in _RECORD_NAMES:
+            return getattr(self.__dict__["record"], name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
     def final_cost(self) -> float:
@@ -170,25 +165,12 @@ class Result:
             "variant": self.variant,
             "noisy": self.noisy,
             "noise": self.noise,
-            "cost_history": self.cost_history,
-            "true_cost_history": self.true_cost_history,
-            "open_loop_cost_history": self.open_loop_cost_history,
-            "rejected_steps": self.rejected_steps,
-            "remeasured": self.remeasured,
-            "longest_rejection_streak": self.longest_rejection_streak,
-            "diverged_rollouts": self.diverged_rollouts,
-            "diverged_candidates": self.diverged_candidates,
-            "mu_retries": self.mu_retries,
-            "reidentifications": self.reidentifications,
-            "sigma_history": self.sigma_history,
+            **self.record.as_dict(),
             "sigma_units": self.sigma_units,
             "mirrored": self.mirrored,
             "open_loop": self.open_loop,
             "warnings": list(self.warnings),
             "control_limits": [[float(lo), float(hi)] for lo, hi in self.control_limits],
-            "alpha_history": self.alpha_history,
-            "mu_history": self.mu_history,
-            "grad_norm_history": self.grad_norm_history,
             "controls": self.controls.tolist(),
             "observations": self.observations.tolist(),
             "states": self.states.tolist(),
@@ -196,8 +178,6 @@ class Result:
             "K": self.K.tolist(),
             "k": self.k.tolist(),
             "q": self.q,
-            "iterations": self.iterations,
-            "rollouts": self.rollouts,
             "wall_s": self.wall_s,
             "compile_s": self.compile_s,
             "run_s": self.run_s,
@@ -227,8 +207,7 @@ class Result:
             from .info_state import info_states
 
             kwargs["info_states"] = np.asarray(info_states(kwargs["observations"], kwargs["controls"], int(d["q"])))
-        for name in ("cost_history", "true_cost_history", "open_loop_cost_history"):
-            kwargs[name] = [math.nan if v is None else float(v) for v in d.get(name, [])]
+        kwargs["record"] = Record.from_dict(d)
         kwargs["control_limits"] = [
             [-math.inf if lo is None else float(lo), math.inf if hi is None else float(hi)]
             for lo, hi in d.get("control_limits", [])
@@ -237,6 +216,9 @@ class Result:
         kwargs["observation_labels"] = tuple(d.get("observation_labels", ()))
         kwargs["state_labels"] = tuple(d.get("state_labels", ()))
         return cls(**kwargs)
+
+
+_RECORD_NAMES = Record.names()
 
 
 def load_result(path: str | os.PathLike) -> Result:

@@ -46,8 +46,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
-from . import rk4
-from . import xla_options
+from . import rk4, xla_options
 from .env import EnvData, EnvDims
 from .info_state import initial_info_state, shift
 from .noise import Noise, sample_noise
@@ -213,6 +212,7 @@ def simulate(
     # loop inside it): the trace of a rollout batch takes about half as long.
     d0 = with_state(dims, make_data(data.model), data.x0)
     d_init = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (batch,) + a.shape), d0)
+
     def one(offset_i, du_i, noise_i, d_i):
         return _rollout_one(dims, q, data, policy, offset_i, du_i, noise_i, record_state, d_i)
 
@@ -253,6 +253,26 @@ def replicated():
     if len(devices) == 1:
         return jax.sharding.SingleDeviceSharding(devices[0])
     return NamedSharding(_batch_mesh(), PartitionSpec())
+
+
+def on_device(x):
+    """``x`` committed to the default device (replicated over all devices when
+    there are several, see ``rollout.replicated``): a number or NumPy array becomes a
+    float64 (or float32) array, a pytree of arrays (``EnvData``) keeps its types.
+
+    Driver-made arrays must be committed like the jitted stages' outputs they
+    alternate with: JAX keys its compilation cache on whether an argument is
+    committed, and mixing the two compiles every stage twice.
+
+    With several processes (``jax.distributed``) every process holds the same
+    values (the same task, settings and seed, or a replicated stage output):
+    each places its own host copy on its devices, and nothing crosses hosts.
+    """
+    if isinstance(x, (int, float, np.ndarray, np.generic)):
+        x = jnp.asarray(x, dtype=jnp.result_type(float))
+    if jax.process_count() > 1:
+        x = jax.tree_util.tree_map(lambda a: np.asarray(a) if isinstance(a, jax.Array) else a, x)
+    return jax.device_put(x, replicated())
 
 
 def shard_batch(tree, batch: int):

@@ -13,7 +13,7 @@ import pytest
 
 import podilqr_jax as pj
 from podilqr_jax.config import adapted_sigma
-from podilqr_jax.solver import actuator_units
+from podilqr_jax.identification import actuator_units
 
 
 def _cfg(**kw):

@@ -152,3 +152,24 @@ def test_sigint_at_any_moment_stops_at_an_iteration_boundary(noisy_task, tmp_pat
     assert np.all(np.isfinite(cut.controls)) and np.all(np.isfinite(cut.K))
     more = cfg.replace(max_iterations=cut.iterations + 3)
     _assert_same(pj.solve(noisy_task, more), pj.solve(noisy_task, more, resume=tmp_path))
+
+
+def test_a_format_2_checkpoint_resumes_as_written(noisy_task, tmp_path):
+    """Format 2 wrote the counters and histories flat, under the driver's old
+    names; format 3 keeps them as the result's record. A checkpoint rewritten
+    into format 2's layout resumes to the same result as format 3's."""
+    from podilqr_jax.checkpoint import _FORMAT_2_NAMES, FILE
+
+    cfg = pj.default_config(noisy_task, n_s=12, max_iterations=5, seed=4)
+    new, old = tmp_path / "3", tmp_path / "2"
+    pj.solve(noisy_task, cfg.replace(max_iterations=3), checkpoint=new, checkpoint_every=1)
+    with np.load(new / FILE) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    header = json.loads(str(arrays.pop("header")))
+    assert header["format"] == 3 and header["record"]["iterations"] == 3
+    record = header.pop("record")
+    old_names = {v: k for k, v in _FORMAT_2_NAMES.items()}
+    header.update({old_names.get(k, k): v for k, v in record.items()}, format=2)
+    os.makedirs(old)
+    np.savez(old / FILE, header=np.array(json.dumps(header)), **arrays)
+    _assert_same(pj.solve(noisy_task, cfg, resume=new), pj.solve(noisy_task, cfg, resume=old))

@@ -69,13 +69,13 @@ def test_when_every_scale_fails_the_solve_changes_the_experiment(pendulum):
 
 
 def test_the_experiments_of_the_recovery_come_in_order():
-    from podilqr_jax.checkpoint import SolverState
-    from podilqr_jax.solver import _next_experiment
+    from podilqr_jax.driver import next_experiment
+    from podilqr_jax.state import SolverState
 
-    st = SolverState(iteration=0, nominal=None, gains=None, model=None, back_k=None, key=None, ls_key=None, mu=1.0)
-    assert _next_experiment(st, closed_loop=True) == "mirrored"
+    st = SolverState(nominal=None, gains=None, key=None, ls_key=None, mu=1.0)
+    assert next_experiment(st, closed_loop=True) == "mirrored"
     st.mirrored = 1
-    assert _next_experiment(st, closed_loop=True) == "open_loop"
-    assert _next_experiment(st, closed_loop=False) is None  # already open loop: nothing left
+    assert next_experiment(st, closed_loop=True) == "open_loop"
+    assert next_experiment(st, closed_loop=False) is None  # already open loop: nothing left
     st.open_loop = 1
-    assert _next_experiment(st, closed_loop=True) is None
+    assert next_experiment(st, closed_loop=True) is None
