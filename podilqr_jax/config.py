@@ -229,7 +229,7 @@ class SolverConfig:
         for name in ("n_avg", "n_forward"):
             value = getattr(self, name)
             if value is not None:
-                _int(name, value, 1)
+                check_int(name, value, 1)
                 if value > 1 and self.variant != "averaged":
                     raise ConfigError(
                         f"`{name}`={value} only applies to variant='averaged' (got variant={self.variant!r}); "
@@ -242,18 +242,18 @@ class SolverConfig:
         _positive("mu_cap", self.mu_cap)
         _positive("memory_budget_mb", self.memory_budget_mb)
         if self.rollout_chunk is not None:
-            _int("rollout_chunk", self.rollout_chunk, 1)
+            check_int("rollout_chunk", self.rollout_chunk, 1)
         if self.estimator not in ESTIMATORS:
             raise ConfigError(
                 f"Unknown estimator {self.estimator!r}; choose one of {', '.join(ESTIMATORS)} (see docs/estimators.md)."
             )
-        _int("n_s", self.n_s, 1)
-        _int("max_iterations", self.max_iterations, 1)
-        _int("n_alphas", self.n_alphas, 1)
-        _int("seed", self.seed, 0)
-        _int("reidentify", self.reidentify, 0)
+        check_int("n_s", self.n_s, 1)
+        check_int("max_iterations", self.max_iterations, 1)
+        check_int("n_alphas", self.n_alphas, 1)
+        check_int("seed", self.seed, 0)
+        check_int("reidentify", self.reidentify, 0)
         if self.q is not None:
-            _int("q", self.q, 1)
+            check_int("q", self.q, 1)
         if self.sigma_scale not in SIGMA_SCALES:
             raise ConfigError(
                 f"Unknown `sigma_scale` {self.sigma_scale!r}; choose one of {', '.join(SIGMA_SCALES)} "
@@ -264,7 +264,7 @@ class SolverConfig:
         for name in ("sigma", "mu_max", "mu_factor", "max_residual"):
             _positive(name, getattr(self, name))
         for name in ("rtol", "gtol", "mu_init", "mu_min", "accept_ratio", "rcond"):
-            _nonnegative(name, getattr(self, name))
+            check_nonnegative(name, getattr(self, name))
         if self.mu_factor <= 1:
             raise ConfigError(f"`mu_factor` must be > 1 so that regularisation can grow; got {self.mu_factor!r}.")
         if self.mu_min > self.mu_max:
@@ -320,7 +320,8 @@ def fully_observed(env: Env) -> bool:
     return env.dims.nz == env.dims.nx
 
 
-def _int(name: str, value: Any, minimum: int) -> None:
+def check_int(name: str, value: Any, minimum: int) -> None:
+    """Raise a ConfigError unless ``value`` is an integer >= ``minimum`` (settings checks, also ``evaluate``'s)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ConfigError(f"`{name}` must be an integer >= {minimum}; got {value!r}.")
 
@@ -336,7 +337,8 @@ def _positive(name: str, value: Any) -> None:
         raise ConfigError(f"`{name}` must be > 0; got {value!r}.")
 
 
-def _nonnegative(name: str, value: Any) -> None:
+def check_nonnegative(name: str, value: Any) -> None:
+    """Raise a ConfigError unless ``value`` is a finite number >= 0."""
     if _finite_number(name, value) < 0:
         raise ConfigError(f"`{name}` must be >= 0; got {value!r}.")
 

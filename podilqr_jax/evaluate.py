@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .config import SolverConfig, _int, _nonnegative
+from .config import SolverConfig, check_int, check_nonnegative
 from .env import Env
 from .episodes import EpisodeNoise, Episodes, run_episodes
 from .errors import ConfigError
@@ -87,12 +87,12 @@ class EvaluateSettings:
                 f"Noise levels must be finite numbers >= 0 (fractions of the maximum control); got {levels}."
             )
         for name in ("episodes", "replan_episodes", "replan_iterations"):
-            _int(name, getattr(self, name), 1)
+            check_int(name, getattr(self, name), 1)
         every = self.replan_every if self.replan_every is not None else max(1, horizon // 3)
         if isinstance(every, bool) or not isinstance(every, int) or not 1 <= every < horizon:
             raise ConfigError(f"`replan_every` must be an integer in 1 .. horizon-1 = {horizon - 1}; got {every!r}.")
         for name in ("measurement_ratio", "model_error", "success_tol"):
-            _nonnegative(name, getattr(self, name))
+            check_nonnegative(name, getattr(self, name))
         if not isinstance(self.u_limit, (int, float)) or math.isnan(self.u_limit) or self.u_limit <= 0:
             raise ConfigError(
                 f"`u_limit` must be > 0 (a multiple of the largest nominal control, or inf); got {self.u_limit!r}."
