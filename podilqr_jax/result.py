@@ -100,8 +100,9 @@ class Result:
 
     def __getattr__(self, name: str):
         """The record's counters and histories as attributes of the result."""
-        if name in _RECORD_NAMES:
-            return getattr(self.__dict__["record"], name)
+        record = self.__dict__.get("record")
+        if record is not None and name in _RECORD_NAMES:
+            return getattr(record, name)
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property

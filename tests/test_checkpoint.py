@@ -1,5 +1,6 @@
 """Never lose a run: checkpoints, resume, Ctrl-C, and same seed same result."""
 
+import functools
 import json
 import os
 import signal
@@ -102,7 +103,10 @@ def test_ctrl_c_writes_the_result_and_exits_cleanly(tmp_path):
     cmd = [sys.executable, "-m", "podilqr_jax.cli", "solve", "pendulum-full", "--noise", "paper"]
     cmd += ["--set", "max_iterations=100000", "--set", "horizon=10", "--out", str(out), "--no-plots"]
     cmd += ["--checkpoint", str(ckpt), "--every", "1", "--quiet"]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    # SIGINT as a terminal delivers it: a test runner started in the background (`nohup pytest &`)
+    # ignores SIGINT, and its children inherit that, so the child gets the default disposition back.
+    restore = functools.partial(signal.signal, signal.SIGINT, signal.SIG_DFL)
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, preexec_fn=restore)
     deadline = time.time() + 240
     while not (ckpt / "checkpoint.npz").exists():
         assert proc.poll() is None and time.time() < deadline, proc.stderr.read() if proc.poll() else "timeout"
