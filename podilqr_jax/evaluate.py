@@ -43,6 +43,7 @@ from .env import Env
 from .episodes import EpisodeNoise, Episodes, run_episodes
 from .errors import ConfigError
 from .kalman import EstimatorNoise, estimator_policy, identify_about_nominal
+from .machine import describe
 from .noise import NoiseModel
 from .policy import FeedbackPolicy
 from .replan import replan_episodes
@@ -266,6 +267,7 @@ def evaluate(
         "result_task": result.task,
         "variant": result.variant,
         "settings": settings.as_dict(),
+        "machine": describe(),
         "model_based_cost": reference.final_cost,
         "nominal_cost": result.final_true_cost,
         "u_max": u_max.tolist(),

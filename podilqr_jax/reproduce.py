@@ -26,14 +26,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import platform
 import time
 from typing import Callable, Optional, Sequence
 
-import jax
 import numpy as np
 
 from .config import PAPER_SETTINGS
+from .machine import describe
 from .noise import NoiseModel
 from .plots import agg_pyplot
 from .result import write_json_atomic
@@ -152,7 +151,7 @@ def run_study(
                         )
     summary = {
         "settings": dataclasses.asdict(settings),
-        "machine": _machine(),
+        "machine": describe(),
         "wall_s": time.perf_counter() - t0,
         "rows": rows,
     }
@@ -197,17 +196,6 @@ def _row(system, observation, study, r, cfg, nominal_true, optimum) -> dict:
         "longest_rejection_streak": r.longest_rejection_streak,
         "noise": r.noise or {},
         "true_cost_history": r.true_cost_history,
-    }
-
-
-def _machine() -> dict:
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "jax": jax.__version__,
-        "backend": jax.default_backend(),
-        "devices": [str(d) for d in jax.devices()],
     }
 
 

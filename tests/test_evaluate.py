@@ -145,6 +145,7 @@ def test_run_evaluation_writes_the_report(solved, tmp_path):
         assert at_zero[c]["mean_cost"] == pytest.approx(result.final_cost, rel=1e-9)
     assert at_zero["model_based"]["mean_cost"] == pytest.approx(report["model_based_cost"], rel=1e-9)
     assert saved["replan_compiles_after_first"] == 0
+    assert saved["machine"]["backend"] == "cpu" and saved["machine"]["cpu_count"] >= 1  # podilqr_jax.machine
 
 
 def _write_result(tmp_path, solved) -> str:

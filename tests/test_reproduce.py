@@ -37,7 +37,7 @@ def test_reproduce_writes_summary_figures_and_table(tmp_path, capsys):
     summary = json.loads((tmp_path / "summary.json").read_text())
     rows = summary["rows"]
     assert format_table(rows) in capsys.readouterr().out
-    assert summary["machine"]["backend"] == "cpu"
+    assert summary["machine"]["backend"] == "cpu" and summary["machine"]["x64"]  # the same description as bench
     for row in summary["rows"]:
         assert ROW_KEYS <= set(row)
         assert row["final_true_cost"] > 0 and row["model_based_cost"] > 0

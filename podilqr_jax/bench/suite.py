@@ -49,7 +49,6 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
 import resource
 import subprocess
 import sys
@@ -57,10 +56,10 @@ import time
 from typing import Any, Optional
 
 import jax
-import mujoco
 import numpy as np
 
 import podilqr_jax as pj
+from podilqr_jax.machine import describe
 from podilqr_jax.result import write_json_atomic
 
 NON_ROLLOUT_PHASES = ("fit", "backward", "host")
@@ -129,29 +128,8 @@ class BenchSettings:
 
 
 def machine() -> dict[str, Any]:
-    """What the numbers were measured on."""
-    devices = jax.devices()
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            names = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
-        cpu = names[0] if names else cpu
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "cpu_count": os.cpu_count(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-        "jaxlib": getattr(jax.lib, "__version__", None) or jax.__version__,
-        "mujoco": mujoco.__version__,
-        "numpy": np.__version__,
-        "backend": jax.default_backend(),
-        "devices": [str(d) for d in devices],
-        "device_kind": devices[0].device_kind,
-        "x64": bool(jax.config.jax_enable_x64),
-    }
+    """What the numbers were measured on (``podilqr_jax.machine.describe``)."""
+    return describe()
 
 
 def peak_host_mb() -> float:
