@@ -1,6 +1,5 @@
 """Never lose a run: checkpoints, resume, Ctrl-C, and same seed same result."""
 
-import functools
 import json
 import os
 import signal
@@ -93,6 +92,18 @@ def test_same_seed_same_result_bit_for_bit(tmp_path):
     assert not np.array_equal(a.controls, c.controls)
 
 
+# `podilqr` with SIGINT as a terminal delivers it: a test runner started in the background
+# (`nohup pytest &`) ignores SIGINT and its children inherit that, so the child puts Python's
+# default handler back before the CLI runs (in Python: a preexec_fn would make Popen fork a
+# multithreaded process).
+_CLI_WITH_CTRL_C = (
+    "import runpy, signal, sys\n"
+    "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+    "sys.argv = ['podilqr'] + sys.argv[1:]\n"
+    "runpy.run_module('podilqr_jax.cli', run_name='__main__')\n"
+)
+
+
 def test_ctrl_c_writes_the_result_and_exits_cleanly(tmp_path):
     """SIGINT during `podilqr solve`: exit 130, no traceback, a complete result
     file with status `interrupted`, and a checkpoint that resumes. The signal
@@ -100,13 +111,10 @@ def test_ctrl_c_writes_the_result_and_exits_cleanly(tmp_path):
     then (saving, the next iteration, a JAX callback): the solve only reads the
     request at an iteration boundary, so where it lands does not matter."""
     out, ckpt = tmp_path / "result.json", tmp_path / "ckpt"
-    cmd = [sys.executable, "-m", "podilqr_jax.cli", "solve", "pendulum-full", "--noise", "paper"]
+    cmd = [sys.executable, "-c", _CLI_WITH_CTRL_C, "solve", "pendulum-full", "--noise", "paper"]
     cmd += ["--set", "max_iterations=100000", "--set", "horizon=10", "--out", str(out), "--no-plots"]
     cmd += ["--checkpoint", str(ckpt), "--every", "1", "--quiet"]
-    # SIGINT as a terminal delivers it: a test runner started in the background (`nohup pytest &`)
-    # ignores SIGINT, and its children inherit that, so the child gets the default disposition back.
-    restore = functools.partial(signal.signal, signal.SIGINT, signal.SIG_DFL)
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, preexec_fn=restore)
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 240
     while not (ckpt / "checkpoint.npz").exists():
         assert proc.poll() is None and time.time() < deadline, proc.stderr.read() if proc.poll() else "timeout"
