@@ -150,19 +150,13 @@ def load_checkpoint(path: str | os.PathLike, expected: dict[str, Any], to_device
     nominal = Nominal(dev("u_bar"), dev("z_bar"), dev("x_bar"), dev("Z_bar"), float(header["nominal_cost"]))
     if header["format"] == 2:
         header["record"] = {_FORMAT_2_NAMES.get(k, k): v for k, v in header.items()}
-    state = SolverState(
+    return SolverState(
         nominal=nominal,
         gains=dev("gains"),
         key=jnp.asarray(arrays["key"]),
         ls_key=jnp.asarray(arrays["ls_key"]),
-        mu=float(header["mu"]),
         model=model,
         back_k=dev("back_k") if "back_k" in arrays else None,
         record=Record.from_dict(header["record"]),
+        **{name: header[name] for name in SolverState.SCALARS},  # JSON keeps their types (float, int, list)
     )
-    for name in SolverState.SCALARS:
-        if name in ("mu", "stopped"):
-            continue
-        setattr(state, name, type(getattr(state, name))(header[name]))
-    state.stopped = header.get("stopped")
-    return state

@@ -303,8 +303,7 @@ def _reject(ctx: Context, st: SolverState, ls, note: str) -> tuple[Optional[Stop
             how = "identifying open loop, without pairs, from now on (the paper's experiment)"
         return None, "no step lowered the cost at any sigma: " + how
     tried = experiments_tried(st, cfg) if ctx.escalate else []
-    steps = ctx.steps
-    return stopping.line_search_failed(cfg, st.streak, tried, ls, steps, st.nominal.cost, ctx.reidentify), note
+    return stopping.line_search_failed(cfg, st.streak, tried, ls, ctx.steps, st.nominal.cost, ctx.reidentify), note
 
 
 def _identify_afresh(ctx: Context, st: SolverState) -> None:

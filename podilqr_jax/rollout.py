@@ -202,9 +202,8 @@ def simulate(
     in_noise = None if noise is None else 0
     if in_offset is None and in_du is None and in_noise is None:
         return _rollout_one(dims, q, data, policy, offset, du, None, record_state)
-    batch = next(a.shape[0] for a, ax in ((offset, in_offset), (du, in_du)) if ax == 0) if noise is None else None
-    if batch is None:
-        batch = jax.tree_util.tree_leaves(noise)[0].shape[0]
+    batched = (offset if in_offset == 0 else None, du if in_du == 0 else None, noise)
+    batch = jax.tree_util.tree_leaves(batched)[0].shape[0]
     # Every rollout starts from its own copy of MJX's data: with the scan's
     # carry batched from the first step, vmap batches the step's jaxpr once
     # (a carry that starts shared and becomes batched after one step makes

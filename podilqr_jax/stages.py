@@ -113,14 +113,14 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
             traced = {k: v for k, v in bound.arguments.items() if k not in static_argnames}
             leaves, treedef = jax.tree_util.tree_flatten(traced)
             if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
-                return jitted(*args, **kwargs)
+                return jitted.plain(*args, **kwargs)  # inside another trace: its compiler options apply
             avals = tuple(jax.typeof(leaf) for leaf in leaves)
             memo = (static, treedef, avals)
             runner = runners.get(memo)
             if runner is None:
                 runner = runners[memo] = _runner(name, fun, jitted, where, static, treedef, avals)
             if runner is jitted:
-                return jitted(*args, **kwargs)
+                return jitted.top()(*args, **kwargs)
             return runner(*leaves)
 
         call.lower = jitted.lower  # the plain jit's (memory analysis, ``bench.line_search_memory``)
@@ -196,7 +196,7 @@ def _runner(name, fun, jitted, where, static, treedef, avals) -> Callable:
             exported = jax.export.export(jax.jit(flat))(*specs)
             _write(where, path, exported.serialize())
             counts["exported"] += 1
-        return xla_options.jit(exported.call)
+        return xla_options.top_level(exported.call)
     except Exception as exc:  # noqa: BLE001 - any refusal means: run it as a plain jit
         fallbacks[name] = f"{type(exc).__name__}: {exc}"[:500]
         return jitted

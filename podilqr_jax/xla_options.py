@@ -49,26 +49,33 @@ def options() -> dict[str, Any]:
     return dict(COMPILER_OPTIONS)
 
 
+def top_level(fun: Callable, **kwargs) -> Callable:
+    """``jax.jit(fun, **kwargs)`` with :func:`options`, for calls known to come
+    from outside any trace (``stages`` knows; elsewhere use :func:`jit`)."""
+    return jax.jit(fun, compiler_options=options() or None, **kwargs)
+
+
 def jit(fun: Callable | None = None, **kwargs) -> Callable:
     """``jax.jit`` with :func:`options`; usable as ``@jit`` or ``@jit(static_argnames=...)``.
 
     JAX takes compiler options on top-level calls only, so a call from inside
     another trace (``jit``, ``vmap``, ``grad``) runs the plain ``jax.jit`` of
-    ``fun``: the enclosing program's options apply to it. The options are
-    read at the first top-level call, not at import (nothing touches a device
-    before ``jax.distributed.initialize``)."""
+    ``fun`` (``.plain``): the enclosing program's options apply to it. The
+    options are read at the first top-level call (``.top()``), not at import
+    (nothing touches a device before ``jax.distributed.initialize``)."""
     if fun is None:
         return functools.partial(jit, **kwargs)
     plain = jax.jit(fun, **kwargs)
 
     @functools.lru_cache(maxsize=1)
     def top() -> Callable:
-        return jax.jit(fun, compiler_options=options(), **kwargs) if options() else plain
+        return top_level(fun, **kwargs) if options() else plain
 
     @functools.wraps(fun)
     def call(*args, **kw):
         nested = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((args, kw)))
         return (plain if nested else top())(*args, **kw)
 
+    call.plain, call.top = plain, top
     call.lower = lambda *args, **kw: top().lower(*args, **kw)
     return call
