@@ -38,7 +38,7 @@ import podilqr_jax as pj
 from podilqr_jax.estimators import fit_information_model_iv
 from podilqr_jax.info_state import info_dim
 from podilqr_jax.result import write_json_atomic
-from podilqr_jax.rollout import injected_perturbations, open_loop_policy, perturbation_rollouts
+from podilqr_jax.rollout import injected_perturbations, open_loop_policy, perturbation_rollouts, rollout_batch
 
 TASKS = ("pendulum-partial", "cartpole-partial")
 # (label, solver settings); n_s, n_avg and the estimator set the rollouts per iteration.
@@ -91,7 +91,7 @@ def coefficient_error(task: str, n_values, seeds: int) -> list[dict]:
     nZ = info_dim(dims.nz, dims.nu, q)
     u_bar = jnp.asarray(0.8 * np.sin(0.5 * np.arange(horizon)))[:, None] * jnp.ones((1, dims.nu))
     zero = jnp.zeros((horizon, dims.nu))
-    nominal = pj.rollout_batch(dims, q, data, open_loop_policy(u_bar, nZ), zero, zero, record_state=True)
+    nominal = rollout_batch(dims, q, data, open_loop_policy(u_bar, nZ), zero, zero, record_state=True)
     exact = pj.linearise(dims, data, nominal.x, nominal.u)
     truth = markov(exact.A, exact.B, np.asarray(data.C), q)
     S = np.eye(dims.nz, nZ)

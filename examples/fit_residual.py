@@ -19,7 +19,7 @@ import numpy as np
 
 import podilqr_jax as pj
 from podilqr_jax.info_state import info_dim
-from podilqr_jax.rollout import open_loop_policy, perturbation_rollouts
+from podilqr_jax.rollout import open_loop_policy, perturbation_rollouts, rollout_batch
 from podilqr_jax.sysid import excited_rank, fit_residual
 from podilqr_jax.taskfile import load_task
 
@@ -39,7 +39,7 @@ def main() -> None:
     nZ = info_dim(dims.nz, dims.nu, q)
     u_bar = jnp.asarray(0.3 * np.sin(0.3 * np.arange(dims.horizon)))[:, None] * jnp.ones((1, dims.nu))
     zero = jnp.zeros((dims.horizon, dims.nu))
-    nominal = pj.rollout_batch(dims, q, data, open_loop_policy(u_bar, nZ), zero, zero, record_state=True)
+    nominal = rollout_batch(dims, q, data, open_loop_policy(u_bar, nZ), zero, zero, record_state=True)
     z_bar, u_nom = (jnp.zeros_like(nominal.z), jnp.zeros_like(nominal.u)) if args.mirrored else (nominal.z, nominal.u)
     print("| sigma | rho | round-off estimate | rho / estimate |\n|---|---|---|---|")
     for sigma in SIGMAS:

@@ -52,8 +52,6 @@ from .estimators import ESTIMATORS as ESTIMATORS
 from .estimators import fit_information_model_iv as fit_information_model_iv
 from .evaluate import EvaluateSettings as EvaluateSettings
 from .evaluate import evaluate as evaluate
-from .evaluation import TrueCosts as TrueCosts
-from .evaluation import true_costs as true_costs
 from .info_state import companion as companion
 from .info_state import info_states as info_states
 from .kalman import EstimatorNoise as EstimatorNoise
@@ -69,10 +67,6 @@ from .result import IterationInfo as IterationInfo
 from .result import Result as Result
 from .result import Status as Status
 from .result import load_result as load_result
-from .rollout import Policy as Policy
-from .rollout import Trajectory as Trajectory
-from .rollout import rollout_batch as rollout_batch
-from .rollout import simulate as simulate
 from .solver import default_config as default_config
 from .solver import solve as solve
 from .solver import solve_model_based as solve_model_based
@@ -102,7 +96,6 @@ __all__ = [
     "LinearModel",
     "ModelLoadError",
     "NoiseModel",
-    "Policy",
     "PodIlqrError",
     "PolicyState",
     "QuadraticCost",
@@ -113,8 +106,6 @@ __all__ = [
     "PAPER_SETTINGS",
     "TASKS",
     "TaskError",
-    "Trajectory",
-    "TrueCosts",
     "VARIANTS",
     "animate",
     "backward_pass",
@@ -133,9 +124,6 @@ __all__ = [
     "replan_episodes",
     "resolve_model_path",
     "run_episodes",
-    "rollout_batch",
-    "simulate",
     "solve",
     "solve_model_based",
-    "true_costs",
 ]

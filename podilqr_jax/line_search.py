@@ -38,7 +38,7 @@ import jax.numpy as jnp
 from .cost import batch_costs
 from .env import EnvData, EnvDims
 from .info_state import info_states
-from .noise import Noise, sample_noise
+from .noise import Disturbance, sample
 from .rollout import Policy, Trajectory, average_repeats, shard_batch, simulate
 from .stages import stage
 
@@ -75,7 +75,7 @@ def line_search(
     batch = n_cand * n_fwd
     candidate_offsets = alphas[:, None, None] * k[None]
     no_perturbation = jnp.zeros((dims.horizon, dims.nu), k.dtype)
-    noise = sample_noise(key, data.noise, batch, dims.horizon) if noisy else None
+    noise = sample(key, data.noise, batch, dims.horizon) if noisy else None
     if chunk is not None and batch > chunk:
         traj = _chunked_candidates(dims, q, data, policy, candidate_offsets, noise, n_fwd, chunk)
     else:
@@ -94,7 +94,9 @@ def line_search(
     return LineSearchResult(accepted, alphas[i], cost[i], chosen, Z, cost, expected, jnp.sum(~finite))
 
 
-def _chunked_candidates(dims, q, data, policy, offsets, noise: Optional[Noise], n_fwd: int, chunk: int) -> Trajectory:
+def _chunked_candidates(
+    dims, q, data, policy, offsets, noise: Optional[Disturbance], n_fwd: int, chunk: int
+) -> Trajectory:
     """The candidates' mean rollouts [n_cand, ...], at most ``chunk`` rollouts at a time.
 
     ``offsets`` [n_cand, T, nu]; ``noise`` per rollout, candidate-major

@@ -11,7 +11,7 @@ with the state x = [qpos, qvel]. ``w_t`` is written into MuJoCo's ``qpos`` and
 batched MJX rollout; ``v_t`` corrupts every measurement, z_0 included, and the
 information state and the feedback are built from the corrupted measurements.
 
-Every rollout draws its own noise from its own PRNG key (``sample_noise`` splits
+Every rollout draws its own noise from its own PRNG key (``sample`` splits
 one key over the batch), so the same seed gives the same result and different
 rollouts, iterations or seeds see different noise.
 
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -104,19 +104,31 @@ class NoiseModel:
 
 
 class NoiseLevels(NamedTuple):
-    """Traced standard deviations, one per component."""
+    """Traced standard deviations, one per component.
+
+    ``a`` (actuator noise on the commanded control) is None for the paper's
+    system, which has none; the closed-loop evaluation sets it
+    (:class:`~podilqr_jax.episodes.EpisodeNoise`)."""
 
     x0: jnp.ndarray  # [nx] start-state deviation
     w: jnp.ndarray  # [nx] process noise
-    v: jnp.ndarray  # [nz] measurement noise
+    v: jnp.ndarray  # [nm] measurement noise
+    a: Optional[jnp.ndarray] = None  # [nu] actuator noise
 
 
-class Noise(NamedTuple):
-    """One noise realisation per rollout (leading batch axis when batched)."""
+class Disturbance(NamedTuple):
+    """One noise realisation per rollout (leading batch axis when batched):
+    every rollout of the engine (``rollout.run``) takes one, or None for a
+    deterministic rollout. A None field is a noise the rollout does not have.
 
-    dx0: jnp.ndarray  # [..., nx]
-    w: jnp.ndarray  # [..., T, nx]   added after control step t
-    v: jnp.ndarray  # [..., T+1, nz] added to z_t
+    ``dx0`` moves the start state, ``w_t`` is added to the state after control
+    step t, ``v_t`` to the measurement m_t and ``a_t`` to the control the
+    physics receives at step t (the rollout records the commanded one)."""
+
+    dx0: Optional[jnp.ndarray] = None  # [..., nx]
+    w: Optional[jnp.ndarray] = None  # [..., S, nx]
+    v: Optional[jnp.ndarray] = None  # [..., S+1, nm]
+    a: Optional[jnp.ndarray] = None  # [..., S, nu]
 
 
 def noise_levels(model: NoiseModel, nx: int, nz: int) -> NoiseLevels:
@@ -125,13 +137,24 @@ def noise_levels(model: NoiseModel, nx: int, nz: int) -> NoiseLevels:
     )
 
 
-def sample_noise(key: jax.Array, levels: NoiseLevels, batch: int, horizon: int) -> Noise:
-    """Independent noise for ``batch`` rollouts of ``horizon`` steps."""
-    k0, kw, kv = jax.random.split(key, 3)
-    nx, nz = levels.x0.shape[0], levels.v.shape[0]
+def sample(key: jax.Array, levels: NoiseLevels, batch: int, steps: int) -> Disturbance:
+    """Independent noise for ``batch`` rollouts of ``steps`` control steps:
+    each component N(0, std^2) with the standard deviations of ``levels``
+    (actuator noise only when ``levels.a`` is given).
+
+    The key is split four ways whether or not there is actuator noise, and
+    JAX's key splitting is partitionable (``jax_threefry_partitionable``, on by
+    default), so the first three draws do not depend on the fourth's presence.
+    """
+    k0, kw, kv, ka = jax.random.split(key, 4)
     dtype = levels.x0.dtype
-    return Noise(
-        dx0=levels.x0 * jax.random.normal(k0, (batch, nx), dtype),
-        w=levels.w * jax.random.normal(kw, (batch, horizon, nx), dtype),
-        v=levels.v * jax.random.normal(kv, (batch, horizon + 1, nz), dtype),
+
+    def normal(k, shape, std):
+        return std * jax.random.normal(k, shape + std.shape, dtype)
+
+    return Disturbance(
+        dx0=normal(k0, (batch,), levels.x0),
+        w=normal(kw, (batch, steps), levels.w),
+        v=normal(kv, (batch, steps + 1), levels.v),
+        a=None if levels.a is None else normal(ka, (batch, steps), levels.a),
     )

@@ -36,7 +36,8 @@ this recursion with different (F, G, L):
 the shapes (static). ``reset``, ``act`` and ``update`` are jitted and
 take the step index as a traced integer, so stepping a policy from Python
 compiles once; ``episodes.run_episodes`` runs the same recursion inside a
-batched MJX rollout.
+batched MJX rollout (the rollout engine, ``rollout.run``, calls the
+controller's ``start``, ``command`` and ``advance``).
 """
 
 from __future__ import annotations
@@ -63,6 +64,20 @@ class Controller(NamedTuple):
     F: jnp.ndarray  # [T, nZ, nZ] estimate propagation
     G: jnp.ndarray  # [T, nZ, nu] control input of the propagation
     L: jnp.ndarray  # [T+1, nZ, nm] measurement gains (L_0 initialises)
+
+    # The controller interface of the rollout engine (``rollout.run``): the
+    # carry is xi, the schedule the step index.
+    def schedule(self, steps: int) -> jnp.ndarray:
+        return jnp.arange(steps)
+
+    def start(self, m0: jnp.ndarray) -> jnp.ndarray:
+        return initial_estimate(self, m0)
+
+    def command(self, xi: jnp.ndarray, t) -> jnp.ndarray:
+        return control(self, t, xi)
+
+    def advance(self, xi: jnp.ndarray, t, u: jnp.ndarray, m: jnp.ndarray) -> jnp.ndarray:
+        return next_estimate(self, t, xi, u, m)
 
 
 class PolicyState(NamedTuple):

@@ -41,8 +41,9 @@ import numpy as np
 from .compile_watch import CompileWatch
 from .config import SolverConfig
 from .env import Env
-from .episodes import EpisodeNoise, Episodes, draw, run_segment, summarise
+from .episodes import EpisodeNoise, Episodes, run_segment, summarise
 from .errors import ConfigError
+from .noise import Disturbance, sample
 from .policy import FeedbackPolicy
 from .solver import solve
 
@@ -90,7 +91,7 @@ def replan_episodes(
         return base.with_nominal(res.controls, res.info_states[:, : base.nz], K)
 
     segments = -(-T // every)
-    noise = draw(key, levels, episodes, segments * every)
+    noise = sample(key, levels.noise, episodes, segments * every)
     dims, data = train_env.dims, train_env.data
     x = np.asarray(data.x0)[None] + np.asarray(noise.dx0)
     plans = [np.asarray(result.controls)] * episodes
@@ -117,16 +118,8 @@ def replan_episodes(
                 progress(f"replan {j}/{segments - 1}: {episodes} solves, {time.perf_counter() - t0:.1f} s")
         stacked = jax.tree.map(lambda *a: jnp.stack(a), *policies)
         s = slice(j * every, (j + 1) * every)
-        z, u, xx = run_segment(
-            dims,
-            data,
-            stacked,
-            (levels.u_low, levels.u_high),
-            jnp.asarray(x),
-            noise.w[:, s],
-            noise.v[:, j * every : (j + 1) * every + 1],
-            noise.a[:, s],
-        )
+        segment = Disturbance(w=noise.w[:, s], v=noise.v[:, j * every : (j + 1) * every + 1], a=noise.a[:, s])
+        z, u, xx = run_segment(dims, data, stacked, levels.limits, jnp.asarray(x), segment)
         x = np.asarray(xx[:, -1])
         zs.append(z if j == 0 else z[:, 1:])
         us.append(u)

@@ -1,19 +1,26 @@
-"""Batched closed-loop rollouts through MJX.
+"""The rollout engine: every closed-loop rollout of the package, batched through MJX.
 
-One rollout applies, at every control step t,
+One scan skeleton, :func:`run`, runs every rollout: the sysid batches, the
+line search, the training-time true cost, the Monte Carlo episodes and the
+receding-horizon segments. It takes a *controller* (``start``, ``command``,
+``advance`` and a per-step ``schedule``) and one noise realisation,
+:class:`~podilqr_jax.noise.Disturbance` ``(dx0, w, v, a)``:
 
-  u_t = clamp(u_bar_t + offset_t + K_t (Z_t - Z_bar_t) + du_t)
+- :class:`InfoStateFeedback`, the training rollouts' controller,
 
-clamped to the model's ctrlrange as MuJoCo clamps ``ctrl`` (``clamp``); the
-recorded u is the applied, clamped control, so the fit sees what acted.
+    u_t = clamp(u_bar_t + offset_t + K_t (Z_t - Z_bar_t) + du_t)
 
-where Z_t is the information state built online from the rollout's own
-observations and applied controls (see ``info_state``). Sysid rollouts use
-``offset = 0`` and ``du ~ N(0, sigma^2 I)``; line-search rollouts use
-``offset = alpha k`` and ``du = 0``; with ``K = 0`` the rollout is open loop.
+  clamped to the model's ctrlrange as MuJoCo clamps ``ctrl``; the recorded u
+  is the applied, clamped control, so the fit sees what acted. Z_t is the
+  information state built online from the rollout's own measurements and
+  applied controls (see ``info_state``). Sysid rollouts use ``offset = 0`` and
+  ``du ~ N(0, sigma^2 I)``; line-search rollouts use ``offset = alpha k`` and
+  ``du = 0``; with ``K = 0`` the rollout is open loop (:func:`simulate`).
+- the estimator recursion of a :class:`~podilqr_jax.policy.Controller` (a
+  learnt policy, raw or Kalman-filtered), run by ``episodes``.
 
-A batch is one ``vmap`` over the leading axis of whichever of ``offset``,
-``du`` and ``noise`` carry one; nothing loops over rollouts in Python.
+A batch is one ``vmap`` (:func:`run_batch`) over the leading axis of whichever
+inputs carry one; nothing loops over rollouts in Python.
 
 Scale (docs/performance.md): with several devices (``jax.devices()``: GPUs,
 or CPU devices from ``XLA_FLAGS=--xla_force_host_platform_device_count=N``,
@@ -24,12 +31,13 @@ one device, so the results are the same. A sysid batch larger than ``chunk``
 rollouts runs as a ``lax.map`` over chunks of whole repeat groups, so memory
 grows with the chunk, not with n_s x n_avg.
 
-Noise (see ``noise``): with a :class:`~podilqr_jax.noise.Noise` realisation per
+Noise (see ``noise``): with a :class:`~podilqr_jax.noise.Disturbance` per
 rollout the start state is x0 + dx_0, the process noise w_t is written into
 ``qpos``/``qvel`` after each control step and the measurement noise v_t is
-added to every observation z_t; the information state, the feedback and the
-returned ``z`` use the measured (noisy) observations, ``x`` the true states.
-Without ``noise`` (``None``) the rollout is deterministic and draws nothing.
+added to every measurement; the controller sees the measured (noisy) values.
+:func:`simulate` returns the measured observations (what the fit sees) and
+the true states ``x``; the episodes return the true observations (what the
+cost is of). Without noise (``None``) a rollout is deterministic and draws nothing.
 
 Shapes: u_bar [T, nu], Z_bar [T, nZ], K [T, nu, nZ]; per rollout z [T+1, nz],
 u [T, nu] and, when recorded, x = [qpos, qvel] [T+1, nx].
@@ -37,6 +45,7 @@ u [T, nu] and, when recorded, x = [qpos, qvel] [T+1, nx].
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import NamedTuple, Optional
 
@@ -49,7 +58,7 @@ from mujoco import mjx
 from . import rk4, xla_options
 from .env import EnvData, EnvDims
 from .info_state import initial_info_state, shift
-from .noise import Noise, sample_noise
+from .noise import Disturbance, sample
 from .stages import stage
 
 
@@ -133,52 +142,134 @@ def with_state(dims: EnvDims, d, x: jnp.ndarray):
     return d.replace(qpos=x[: dims.nq], qvel=x[dims.nq :])
 
 
-def _rollout_one(
+@dataclasses.dataclass(frozen=True)
+class InfoStateFeedback:
+    """The training rollouts' controller: u_t = u_bar_t + offset_t +
+    K_t (Z_t - Z_bar_t) + du_t, with Z_t the information state of the
+    rollout's own measurements and applied controls (``info_state``, ``q``
+    past measurements; the carry of :func:`run` is Z_t)."""
+
+    policy: Policy
+    offset: jnp.ndarray  # [T, nu]
+    du: jnp.ndarray  # [T, nu]
+    q: int  # static
+
+    def schedule(self, steps: int):
+        return (self.policy.u_bar, self.policy.Z_bar, self.policy.K, self.offset, self.du)
+
+    def start(self, m0: jnp.ndarray) -> jnp.ndarray:
+        return initial_info_state(m0, self.policy.u_bar.shape[-1], self.q)
+
+    def command(self, Z: jnp.ndarray, s) -> jnp.ndarray:
+        u_bar_t, Z_bar_t, K_t, offset_t, du_t = s
+        return u_bar_t + offset_t + K_t @ (Z - Z_bar_t) + du_t
+
+    def advance(self, Z: jnp.ndarray, s, u: jnp.ndarray, m: jnp.ndarray) -> jnp.ndarray:
+        return shift(Z, m, u, m.shape[0], u.shape[0], self.q)
+
+
+jax.tree_util.register_dataclass(InfoStateFeedback, data_fields=["policy", "offset", "du"], meta_fields=["q"])
+
+
+def run(
     dims: EnvDims,
-    q: int,
     data: EnvData,
-    policy: Policy,
-    offset,
-    du,
-    noise: Optional[Noise],
-    record_state: bool,
-    d_init=None,
+    controller,
+    disturbance: Optional[Disturbance],
+    x_start: jnp.ndarray,
+    d,
+    limits,
+    *,
+    steps: Optional[int] = None,
+    measures_state: bool = False,
+    record_measured: bool = False,
+    record_state: bool = False,
 ) -> Trajectory:
+    """One closed-loop rollout of ``steps`` control steps (default: the
+    horizon): the one scan skeleton every rollout of the package runs.
+
+    From the true start state x_0 = x_start (+ dx_0), at every step t
+
+      m_t     = z_t (or x_t, ``measures_state``) + v_t   what the controller measures
+      u_t     = clip(controller.command(c_t, s_t), limits)
+      x_{t+1} = f(x_t, u_t + a_t) + w_t                    ``substeps`` MuJoCo steps
+      c_{t+1} = controller.advance(c_t, s_t, u_t, m_{t+1})
+
+    with c_0 = controller.start(m_0) and s_t the controller's schedule at t
+    (its per-step arrays, or t itself). The controller is the information-state
+    feedback of the training rollouts (:class:`InfoStateFeedback`) or the
+    estimator recursion of a :class:`~podilqr_jax.policy.Controller`; the noise
+    is one :class:`~podilqr_jax.noise.Disturbance` (None: deterministic).
+    ``d`` is MJX data to start from (its state is overwritten).
+
+    Returns the true observations z [S+1, nz] (with ``record_measured``: the
+    measurements m, what the controller saw), the commanded (clipped)
+    controls u [S, nu] and, with ``record_state``, the true states x [S+1, nx].
+    """
     model = data.model
-    T = dims.horizon
-    if d_init is None:
-        d_init = with_state(dims, make_data(model), data.x0)
-    x0 = state_of(d_init) if noise is None else state_of(d_init) + noise.dx0
-    d = with_state(dims, d_init, x0)
+    steps = dims.horizon if steps is None else steps
+    dist = Disturbance() if disturbance is None else disturbance
+    x0 = x_start if dist.dx0 is None else x_start + dist.dx0
+    d = with_state(dims, d, x0)
+    v_now, v_next = (None, None) if dist.v is None else (dist.v[0], dist.v[1:])
+
+    def measured(z, x, v_t):
+        m = x if measures_state else z
+        return m if v_t is None else m + v_t
+
     z0 = observe(dims, data, d, x0)
-    if noise is None:
-        w = v_next = jnp.zeros((T, 0), x0.dtype)  # nothing to add; keeps one scan body
-    else:
-        w, v_next = noise.w, noise.v[1:]
-        z0 = z0 + noise.v[0]
-    Z0 = initial_info_state(z0, dims.nu, q)
+    m0 = measured(z0, x0, v_now)
+    c0 = controller.start(m0)
 
     def step(carry, inp):
-        d, Z = carry
-        u_bar_t, Z_bar_t, K_t, offset_t, du_t, w_t, v_t = inp
-        u = clamp(data, u_bar_t + offset_t + K_t @ (Z - Z_bar_t) + du_t)
-        d = physics_step(dims, model, d, u)
-        if noise is not None:
+        d, c = carry
+        s, w_t, v_t, a_t = inp
+        u = jnp.clip(controller.command(c, s), *limits)
+        d = physics_step(dims, model, d, u if a_t is None else u + a_t)
+        if w_t is not None:
             d = with_state(dims, d, state_of(d) + w_t)
         x = state_of(d)
         z = observe(dims, data, d, x)
-        if noise is not None:
-            z = z + v_t
-        Z = shift(Z, z, u, dims.nz, dims.nu, q)
-        return (d, Z), (z, u, x if record_state else None)
+        m = measured(z, x, v_t)
+        c = controller.advance(c, s, u, m)
+        return (d, c), (m if record_measured else z, u, x if record_state else None)
 
-    offset = jnp.broadcast_to(offset, (T, dims.nu))
-    du = jnp.broadcast_to(du, (T, dims.nu))
-    _, (z, u, x) = jax.lax.scan(step, (d, Z0), (policy.u_bar, policy.Z_bar, policy.K, offset, du, w, v_next))
-    z = jnp.concatenate([z0[None], z])
+    _, (z, u, x) = jax.lax.scan(step, (d, c0), (controller.schedule(steps), dist.w, v_next, dist.a), length=steps)
+    z = jnp.concatenate([(m0 if record_measured else z0)[None], z])
     if record_state:
         x = jnp.concatenate([x0[None], x])
     return Trajectory(z, u, x)
+
+
+def run_batch(
+    dims: EnvDims,
+    data: EnvData,
+    controller,
+    disturbance: Optional[Disturbance],
+    x_start: jnp.ndarray,
+    limits,
+    *,
+    batch: int,
+    in_axes,
+    **options,
+) -> Trajectory:
+    """``batch`` rollouts of :func:`run` as one ``vmap``: ``in_axes`` (for
+    controller, disturbance and x_start, as ``jax.vmap`` takes them) says
+    which carry a leading batch axis; ``options`` go to :func:`run`.
+
+    Every rollout starts from its own copy of MJX's data: with the scan's
+    carry batched from the first step, vmap batches the step's jaxpr once (a
+    carry that starts shared and becomes batched after one step makes the
+    scan's batching rule run twice, and so the one of the substeps' loop
+    inside it): the trace of a rollout batch takes about half as long.
+    """
+    d0 = make_data(data.model)
+    d_init = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (batch,) + a.shape), d0)
+
+    def one(c, dist, x_i, d_i):
+        return run(dims, data, c, dist, x_i, d_i, limits, **options)
+
+    return jax.vmap(one, in_axes=(*in_axes, 0))(controller, disturbance, x_start, d_init)
 
 
 def simulate(
@@ -189,9 +280,12 @@ def simulate(
     offset: jnp.ndarray,
     du: jnp.ndarray,
     record_state: bool = False,
-    noise: Optional[Noise] = None,
+    noise: Optional[Disturbance] = None,
 ) -> Trajectory:
-    """A batch of rollouts (traceable; call it inside a jitted function).
+    """The training rollouts (traceable; call it inside a jitted function):
+    :func:`run` with :class:`InfoStateFeedback`, clamped to the model's
+    ctrlrange, from the task's x0, returning the *measured* observations
+    z + v (what the fit sees).
 
     ``offset`` and ``du`` are each either shared, [T, nu], or per rollout,
     [B, T, nu]; ``noise``, when given, is per rollout (leading axis B). The
@@ -200,22 +294,15 @@ def simulate(
     in_offset = 0 if offset.ndim == 3 else None
     in_du = 0 if du.ndim == 3 else None
     in_noise = None if noise is None else 0
+    limits = (data.u_low, data.u_high)
+    controller = InfoStateFeedback(policy, offset, du, q)
+    options = dict(record_measured=True, record_state=record_state)
     if in_offset is None and in_du is None and in_noise is None:
-        return _rollout_one(dims, q, data, policy, offset, du, None, record_state)
+        return run(dims, data, controller, None, data.x0, make_data(data.model), limits, **options)
     batched = (offset if in_offset == 0 else None, du if in_du == 0 else None, noise)
     batch = jax.tree_util.tree_leaves(batched)[0].shape[0]
-    # Every rollout starts from its own copy of MJX's data: with the scan's
-    # carry batched from the first step, vmap batches the step's jaxpr once
-    # (a carry that starts shared and becomes batched after one step makes
-    # the scan's batching rule run twice, and so the one of the substeps'
-    # loop inside it): the trace of a rollout batch takes about half as long.
-    d0 = with_state(dims, make_data(data.model), data.x0)
-    d_init = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (batch,) + a.shape), d0)
-
-    def one(offset_i, du_i, noise_i, d_i):
-        return _rollout_one(dims, q, data, policy, offset_i, du_i, noise_i, record_state, d_i)
-
-    return jax.vmap(one, in_axes=(in_offset, in_du, in_noise, 0))(offset, du, noise, d_init)
+    axes = (InfoStateFeedback(None, in_offset, in_du, q), in_noise, None)
+    return run_batch(dims, data, controller, noise, data.x0, limits, batch=batch, in_axes=axes, **options)
 
 
 def average_repeats(traj: Trajectory, n_avg: int) -> Trajectory:
@@ -364,7 +451,7 @@ def _sequences(dims, q, data, policy, du, noise_key, n_avg, noisy, chunk) -> Tra
     if n_avg > 1:
         du = jnp.repeat(du, n_avg, axis=0)
     batch = n * n_avg
-    noise = sample_noise(noise_key, data.noise, batch, dims.horizon) if noisy else None
+    noise = sample(noise_key, data.noise, batch, dims.horizon) if noisy else None
     du, noise = shard_batch((du, noise), batch)
     zero = jnp.zeros((dims.horizon, dims.nu), policy.u_bar.dtype)
     return average_repeats(simulate(dims, q, data, policy, zero, du, noise=noise), n_avg)
@@ -378,7 +465,7 @@ def _chunked(dims, q, data, policy, du, noise_key, n_avg, noisy, per_chunk) -> T
 
     def one(args):
         du_j, key_j = args
-        noise = sample_noise(key_j, data.noise, n_avg, T) if noisy else None
+        noise = sample(key_j, data.noise, n_avg, T) if noisy else None
         traj = simulate(dims, q, data, policy, zero, jnp.broadcast_to(du_j, (n_avg, T, nu)), noise=noise)
         return traj.z.mean(axis=0), traj.u.mean(axis=0)
 

@@ -20,7 +20,7 @@ import pytest
 
 import podilqr_jax as pj
 from podilqr_jax.info_state import info_dim
-from podilqr_jax.rollout import open_loop_policy, perturbation_rollouts
+from podilqr_jax.rollout import open_loop_policy, perturbation_rollouts, rollout_batch
 
 HORIZON = 12
 SIGMAS = (1e-2, 1e-3, 1e-4)
@@ -37,7 +37,7 @@ FINAL_REL_ERROR = 1e-3
 def _nominal(dims, q, data, u_bar):
     nZ = info_dim(dims.nz, dims.nu, q)
     zero = jnp.zeros((dims.horizon, dims.nu))
-    return pj.rollout_batch(dims, q, data, open_loop_policy(u_bar, nZ), zero, zero, record_state=True)
+    return rollout_batch(dims, q, data, open_loop_policy(u_bar, nZ), zero, zero, record_state=True)
 
 
 def _predict(A, B, du):

@@ -14,8 +14,9 @@ import pytest
 
 import podilqr_jax as pj
 from podilqr_jax.info_state import info_dim
-from podilqr_jax.noise import sample_noise
+from podilqr_jax.noise import sample
 from podilqr_jax.rollout import (
+    Trajectory,
     average_repeats,
     injected_perturbations,
     open_loop_policy,
@@ -41,7 +42,7 @@ def test_noise_is_written_into_the_state_and_the_measurement():
     dims, data = env.dims, env.data
     policy = open_loop_policy(jnp.full((HORIZON, dims.nu), 0.3), info_dim(dims.nz, dims.nu, 2))
     zero = jnp.zeros((1, HORIZON, dims.nu))
-    noise = sample_noise(jax.random.PRNGKey(3), data.noise, 1, HORIZON)
+    noise = sample(jax.random.PRNGKey(3), data.noise, 1, HORIZON)
     noisy = rollout_batch(dims, 2, data, policy, zero, zero, record_state=True, noise=noise)
     clean = rollout_batch(dims, 2, data, policy, zero, zero, record_state=True)
     x_n, x_c = np.asarray(noisy.x[0]), np.asarray(clean.x[0])
@@ -60,7 +61,7 @@ def test_initial_state_deviation_moves_the_start():
     dims, data = env.dims, env.data
     policy = open_loop_policy(jnp.zeros((HORIZON, dims.nu)), dims.nz)
     zero = jnp.zeros((2, HORIZON, dims.nu))
-    noise = sample_noise(jax.random.PRNGKey(0), data.noise, 2, HORIZON)
+    noise = sample(jax.random.PRNGKey(0), data.noise, 2, HORIZON)
     traj = rollout_batch(dims, 1, data, policy, zero, zero, record_state=True, noise=noise)
     np.testing.assert_allclose(np.asarray(traj.x[:, 0]), np.asarray(data.x0) + np.asarray(noise.dx0), atol=1e-15)
     assert not np.allclose(np.asarray(traj.x[0, 0]), np.asarray(traj.x[1, 0]))  # per-rollout noise
@@ -81,7 +82,7 @@ def test_repeats_are_grouped_per_perturbation_sequence():
     du = injected_perturbations(key, sigma, 6, HORIZON, dims.nu)
     np.testing.assert_allclose(np.asarray(one.u), np.asarray(du), rtol=0, atol=1e-15)
     # and the helper averages consecutive groups
-    t = pj.Trajectory(jnp.arange(12.0).reshape(4, 3, 1), jnp.arange(8.0).reshape(4, 2, 1), None)
+    t = Trajectory(jnp.arange(12.0).reshape(4, 3, 1), jnp.arange(8.0).reshape(4, 2, 1), None)
     np.testing.assert_array_equal(np.asarray(average_repeats(t, 2).z[:, 0, 0]), [1.5, 7.5])
 
 

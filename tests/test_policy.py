@@ -18,8 +18,9 @@ import pytest
 import podilqr_jax as pj
 from podilqr_jax.compile_watch import CompileWatch
 from podilqr_jax.kalman import kalman_gains
-from podilqr_jax.noise import noise_levels, sample_noise
+from podilqr_jax.noise import noise_levels, sample
 from podilqr_jax.policy import run_on_measurements
+from podilqr_jax.rollout import Policy, rollout_batch
 
 SPRING_XML = """
 <mujoco>
@@ -137,11 +138,11 @@ def test_policy_reproduces_the_solvers_closed_loop_rollout(pendulum_result):
     rollout applied."""
     env, result = pendulum_result
     policy = result.policy()
-    nominal = pj.Policy(np.asarray(result.controls), np.asarray(result.info_states[:-1]), np.asarray(result.K))
+    nominal = Policy(np.asarray(result.controls), np.asarray(result.info_states[:-1]), np.asarray(result.K))
     levels = noise_levels(pj.NoiseModel(initial=0.05, process=0.01, measurement=0.02), env.dims.nx, env.dims.nz)
-    noise = sample_noise(jax.random.PRNGKey(0), levels, 3, 10)
+    noise = sample(jax.random.PRNGKey(0), levels, 3, 10)
     zero = np.zeros((10, 1))
-    traj = pj.rollout_batch(env.dims, result.q, env.data, nominal, zero, zero, noise=noise)
+    traj = rollout_batch(env.dims, result.q, env.data, nominal, zero, zero, noise=noise)
     for j in range(3):
         u = np.asarray(run_on_measurements(policy.controller, traj.z[j]))
         np.testing.assert_allclose(u, traj.u[j], rtol=0, atol=1e-12)

@@ -19,7 +19,7 @@ import pytest
 import podilqr_jax as pj
 from podilqr_jax.cli import main as cli_main
 from podilqr_jax.model_based import nonfinite_hint
-from podilqr_jax.noise import sample_noise
+from podilqr_jax.noise import sample
 from podilqr_jax.package_files import resolve_model_path
 from podilqr_jax.rollout import open_loop_policy, physics_step, rollout_batch, with_state
 from podilqr_jax.taskfile import load_task
@@ -219,7 +219,7 @@ def test_point_mass_tendons_and_joint_limit_solve_to_the_model_based_optimum():
 def test_point_mass_rolls_out_under_noise():
     env = _point_mass_task(noise={"initial": 0.01, "process": 0.001})
     dims, data = env.dims, env.data
-    noise = sample_noise(jax.random.PRNGKey(0), data.noise, 4, 12)
+    noise = sample(jax.random.PRNGKey(0), data.noise, 4, 12)
     policy = open_loop_policy(jnp.full((12, 2), 1.0), dims.nz)
     zero = jnp.zeros((12, 2))
     traj = rollout_batch(dims, 1, data, policy, zero, zero, record_state=True, noise=noise)
