@@ -20,7 +20,7 @@ import numpy as np
 from mujoco import mjx
 
 import podilqr_jax as pj
-from podilqr_jax.rollout import physics_step, state_of, with_state
+from podilqr_jax.sim.rollout import physics_step, state_of, with_state
 
 MODEL = """
 <mujoco model="constrained">

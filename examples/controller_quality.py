@@ -26,8 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.config import fully_observed
-from podilqr_jax.episodes import EpisodeNoise, run_episodes
+from podilqr_jax.ilqr.config import fully_observed
+from podilqr_jax.sim.episodes import EpisodeNoise, run_episodes
 
 TASKS = ("pendulum-full", "pendulum-partial", "cartpole-full", "cartpole-partial")
 EPISODES = 128

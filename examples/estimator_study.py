@@ -35,10 +35,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.estimators import fit_information_model_iv
-from podilqr_jax.info_state import info_dim
-from podilqr_jax.result import write_json_atomic
-from podilqr_jax.rollout import injected_perturbations, open_loop_policy, perturbation_rollouts, rollout_batch
+from podilqr_jax.identify.estimators import fit_information_model_iv
+from podilqr_jax.identify.info_state import info_dim
+from podilqr_jax.ilqr.result import write_json_atomic
+from podilqr_jax.sim.rollout import injected_perturbations, open_loop_policy, perturbation_rollouts, rollout_batch
 
 TASKS = ("pendulum-partial", "cartpole-partial")
 # (label, solver settings); n_s, n_avg and the estimator set the rollouts per iteration.

@@ -18,10 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.info_state import info_dim
-from podilqr_jax.rollout import open_loop_policy, perturbation_rollouts, rollout_batch
-from podilqr_jax.sysid import excited_rank, fit_residual
-from podilqr_jax.taskfile import load_task
+from podilqr_jax.identify.info_state import info_dim
+from podilqr_jax.identify.sysid import excited_rank, fit_residual
+from podilqr_jax.sim.rollout import open_loop_policy, perturbation_rollouts, rollout_batch
+from podilqr_jax.task.taskfile import load_task
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 DEFAULT = os.path.join(HERE, "tasks", "third_party", "dmc_cartpole_swingup.toml")

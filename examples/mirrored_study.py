@@ -24,10 +24,10 @@ import os
 import time
 
 import podilqr_jax as pj
-from podilqr_jax.noise import NoiseModel
-from podilqr_jax.reproduce import ROW_SETTINGS
-from podilqr_jax.taskfile import load_task
-from podilqr_jax.tasks import PAPER_S0
+from podilqr_jax.studies.reproduce import ROW_SETTINGS
+from podilqr_jax.task.noise import NoiseModel
+from podilqr_jax.task.taskfile import load_task
+from podilqr_jax.task.tasks import PAPER_S0
 
 HORIZON = 30
 ITERATIONS = {"pendulum": 100, "cartpole": 200}

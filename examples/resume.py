@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.checkpoint import FILE
+from podilqr_jax.ilqr.checkpoint import FILE
 
 
 def main() -> None:

@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from podilqr_jax import rk4
-from podilqr_jax.taskfile import load_task
+from podilqr_jax.sim import rk4
+from podilqr_jax.task.taskfile import load_task
 
 
 def best_seconds(env, stepper, repeats: int = 5) -> float:

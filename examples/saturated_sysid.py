@@ -20,14 +20,14 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.backward import QuadraticCost, Regularisation, backward_pass
-from podilqr_jax.checkpoint import fingerprint, load_checkpoint
-from podilqr_jax.identification import _unsaturated_gains
-from podilqr_jax.info_state import observation_selector
-from podilqr_jax.line_search import line_search
-from podilqr_jax.rollout import Policy, perturbation_rollouts
-from podilqr_jax.sysid import excited_rank, fit_information_model
-from podilqr_jax.taskfile import load_task
+from podilqr_jax.identify.identification import _unsaturated_gains
+from podilqr_jax.identify.info_state import observation_selector
+from podilqr_jax.identify.sysid import excited_rank, fit_information_model
+from podilqr_jax.ilqr.backward import QuadraticCost, Regularisation, backward_pass
+from podilqr_jax.ilqr.checkpoint import fingerprint, load_checkpoint
+from podilqr_jax.ilqr.line_search import line_search
+from podilqr_jax.sim.rollout import Policy, perturbation_rollouts
+from podilqr_jax.task.taskfile import load_task
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TASK = os.path.join(HERE, "tasks", "third_party", "dmc_cartpole_swingup.toml")

@@ -7,7 +7,7 @@ model-based optimum.
 import sys
 
 import podilqr_jax as pj
-from podilqr_jax.plots import plot_convergence, plot_trajectory
+from podilqr_jax.viz.plots import plot_convergence, plot_trajectory
 
 task = sys.argv[1] if len(sys.argv) > 1 else "cartpole-partial"
 env = pj.make_task(task)

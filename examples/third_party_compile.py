@@ -20,8 +20,8 @@ import mujoco
 from mujoco import mjx
 
 import podilqr_jax as pj
-from podilqr_jax.package_files import resolve_model_path
-from podilqr_jax.rollout import physics_step, with_state
+from podilqr_jax.sim.rollout import physics_step, with_state
+from podilqr_jax.task.package_files import resolve_model_path
 
 EULER = int(mujoco.mjtIntegrator.mjINT_EULER)
 

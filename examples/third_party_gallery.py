@@ -84,8 +84,8 @@ def row(stem: str, out_dir: str, fig_dir: str) -> str | None:
 
 
 def _figure(result_path: str, stem: str, fig_dir: str) -> str:
-    from podilqr_jax.plots import plot_trajectory
-    from podilqr_jax.result import load_result
+    from podilqr_jax.ilqr.result import load_result
+    from podilqr_jax.viz.plots import plot_trajectory
 
     os.makedirs(fig_dir, exist_ok=True)
     return plot_trajectory(load_result(result_path), os.path.join(fig_dir, f"{stem}.png"))
@@ -129,7 +129,7 @@ def probe() -> str:
     (MuJoCo compile + MJX put_model; nothing is jitted), with its notes or why
     it is refused."""
     import podilqr_jax as pj
-    from podilqr_jax.package_files import package_folders
+    from podilqr_jax.task.package_files import package_folders
 
     lines = ["| model | nq / nu | loads? | notes or refusal |", "|---|---|---|---|"]
     for folder in PROBED:
@@ -154,7 +154,7 @@ def compile_table(stems: list[str], out_dir: str) -> str:
     import mujoco
     from mujoco import mjx
 
-    from podilqr_jax.taskfile import load_task
+    from podilqr_jax.task.taskfile import load_task
 
     lines = [
         "| task | integrator | MJX constraint rows (solver, line-search iterations) "

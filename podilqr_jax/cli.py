@@ -234,10 +234,10 @@ def _check_writable(path: str) -> None:
 
 def load_env(task: str, noise: Optional[str] = None):
     """A bundled task by name, or a task file by path; ``noise`` as --noise."""
-    from .config import fully_observed
-    from .noise import NoiseModel
-    from .taskfile import load_task
-    from .tasks import PAPER_S0, make_task
+    from .ilqr.config import fully_observed
+    from .task.noise import NoiseModel
+    from .task.taskfile import load_task
+    from .task.tasks import PAPER_S0, make_task
 
     is_file = task.endswith((".toml", ".json")) or os.path.sep in task
     env = load_task(task) if is_file else make_task(task)
@@ -253,7 +253,7 @@ def load_env(task: str, noise: Optional[str] = None):
 
 def _parse_noise(text: str):
     from .errors import TaskError
-    from .noise import NoiseModel
+    from .task.noise import NoiseModel
 
     text = text.strip()
     if text in ("paper", "none"):
@@ -271,14 +271,14 @@ def _parse_noise(text: str):
 
 
 def _cmd_bench(argv: list[str]) -> int:
-    """``podilqr bench``: the benchmark suite installed with the package (podilqr_jax/bench)."""
-    from .bench import main as bench_main
+    """``podilqr bench``: the benchmark suite installed with the package (podilqr_jax/studies/bench)."""
+    from .studies.bench import main as bench_main
 
     return bench_main(argv)
 
 
 def _cmd_tasks(args: argparse.Namespace) -> int:
-    from .tasks import TASKS
+    from .task.tasks import TASKS
 
     for name in TASKS:
         print(name)
@@ -287,7 +287,7 @@ def _cmd_tasks(args: argparse.Namespace) -> int:
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from .errors import ConfigError
-    from .reproduce import SYSTEMS, StudySettings, format_table, run_study
+    from .studies.reproduce import SYSTEMS, StudySettings, format_table, run_study
 
     settings = StudySettings.quick() if args.quick else StudySettings.tiny() if args.tiny else StudySettings()
     systems = tuple(s.strip() for s in args.systems.split(",") if s.strip())
@@ -327,11 +327,11 @@ def _parse_levels(text: str) -> tuple[float, ...]:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from .config import fully_observed
-    from .evaluate import EvaluateSettings, format_table, run_evaluation
-    from .noise import NoiseModel
-    from .result import load_result
-    from .tasks import PAPER_S0
+    from .ilqr.config import fully_observed
+    from .ilqr.result import load_result
+    from .studies.evaluate import EvaluateSettings, format_table, run_evaluation
+    from .task.noise import NoiseModel
+    from .task.tasks import PAPER_S0
 
     settings = EvaluateSettings.quick() if args.quick else EvaluateSettings()
     changes: dict[str, Any] = {}
@@ -371,9 +371,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_animate(args: argparse.Namespace) -> int:
-    from .animate import animate, task_env
     from .errors import ConfigError
-    from .result import load_result
+    from .ilqr.result import load_result
+    from .viz.animate import animate, task_env
 
     result = load_result(args.result)
     if args.compare and args.vs_open_loop:
@@ -406,7 +406,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
 
 
 def _cmd_solve(args: argparse.Namespace) -> int:
-    from .interrupts import deferred_interrupts
+    from .ilqr.interrupts import deferred_interrupts
 
     # A Ctrl-C anywhere in here, solves or writing, ends with a complete result file.
     with deferred_interrupts as interrupts:
@@ -453,12 +453,12 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
             f"POD-iLQR {what} / model-based cost: {payload['ratio_to_model_based']:.6f}",
             file=sys.stderr,
         )
-    from .result import write_json_atomic
+    from .ilqr.result import write_json_atomic
 
     write_json_atomic(args.out, payload)
     print(f"wrote {args.out}", file=sys.stderr)
     if not args.no_plots:
-        from .plots import plot_convergence, plot_trajectory
+        from .viz.plots import plot_convergence, plot_trajectory
 
         stem = os.path.splitext(args.out)[0]
         paths = [
@@ -475,8 +475,8 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
 
 def _solve_animation(result, env, path: str) -> str:
     """The solve's motion GIF beside its plots (small frames); a note, not a failure, if it cannot be drawn."""
-    from .animate import animate
     from .errors import PodIlqrError
+    from .viz.animate import animate
 
     try:
         return animate(result, path, env=env).path

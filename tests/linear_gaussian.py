@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax  # noqa: F401  (enables float64 in JAX)
-from podilqr_jax.sysid import fit_information_model
+from podilqr_jax.identify.sysid import fit_information_model
 
 # rcond of the fits: drop only singular values that are numerically zero.
 RCOND = 1e-10

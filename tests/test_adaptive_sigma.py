@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.config import adapted_sigma
-from podilqr_jax.identification import actuator_units
+from podilqr_jax.identify.identification import actuator_units
+from podilqr_jax.ilqr.config import adapted_sigma
 
 
 def _cfg(**kw):

@@ -12,8 +12,11 @@ import pytest
 from PIL import Image, ImageSequence
 
 import podilqr_jax as pj
-from podilqr_jax import render
-from podilqr_jax.animate import (
+from podilqr_jax.cli import main
+from podilqr_jax.errors import ConfigError
+from podilqr_jax.task.tasks import MODELS_DIR
+from podilqr_jax.viz import render
+from podilqr_jax.viz.animate import (
     Panel,
     _durations_ms,
     animate,
@@ -23,10 +26,8 @@ from podilqr_jax.animate import (
     render_frames,
     target_pose,
 )
-from podilqr_jax.cli import main
-from podilqr_jax.errors import ConfigError
 
-animate_module = importlib.import_module("podilqr_jax.animate")  # `pj.animate` is the function
+animate_module = importlib.import_module("podilqr_jax.viz.animate")  # `pj.animate` is the function
 
 T = 10  # horizon of the solved fixture (control_dt 0.1 s)
 
@@ -178,7 +179,7 @@ def test_every_geom_type_renders_in_its_colour():
 
 
 def test_view_plane_follows_the_motion():
-    cart = mujoco.MjModel.from_xml_path(os.path.join(pj.tasks.MODELS_DIR, "cartpole.xml"))
+    cart = mujoco.MjModel.from_xml_path(os.path.join(MODELS_DIR, "cartpole.xml"))
     q = np.stack([np.linspace(-1, 1, 9), np.linspace(np.pi, 0, 9)], axis=1)
     view = render.choose_view(cart, [q], 320, 240)
     np.testing.assert_allclose(np.abs(view.forward), [0, 1, 0], atol=1e-12)  # the x-z plane, face on
@@ -220,7 +221,7 @@ def test_fallback_without_a_display_is_silent(tmp_path):
     env["MUJOCO_GL"] = "glfw"
     code = (
         "import mujoco, numpy as np\n"
-        "from podilqr_jax import render\n"
+        "from podilqr_jax.viz import render\n"
         "m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\"0.1\"/></worldbody></mujoco>')\n"
         "v = render.choose_view(m, [np.zeros((1, 0))], 64, 48)\n"
         "for _ in range(2):\n"

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.backward import box_qp
-from podilqr_jax.line_search import line_search
-from podilqr_jax.rollout import Policy, observations_of
-from podilqr_jax.sysid import fit_information_model
+from podilqr_jax.identify.sysid import fit_information_model
+from podilqr_jax.ilqr.backward import box_qp
+from podilqr_jax.ilqr.line_search import line_search
+from podilqr_jax.sim.rollout import Policy, observations_of
 
 PENDULUM = """
 <mujoco model="sensed-pendulum">

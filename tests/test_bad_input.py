@@ -26,7 +26,7 @@ def test_bad_input_is_refused_cleanly(case):
 def test_the_good_task_of_the_table_solves(tmp_path):
     """The cases' base task is valid: each case breaks exactly one thing."""
     import podilqr_jax as pj
-    from podilqr_jax.taskfile import load_task
+    from podilqr_jax.task.taskfile import load_task
 
     (tmp_path / "arm.xml").write_text(bad_inputs.MODEL.format(**bad_inputs.GOOD_GEOM))
     (tmp_path / "arm.toml").write_text(bad_inputs.TASK.format(**bad_inputs.GOOD_TASK))

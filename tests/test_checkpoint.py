@@ -141,7 +141,7 @@ def test_sigint_at_any_moment_stops_at_an_iteration_boundary(noisy_task, tmp_pat
     iteration ``after_iteration`` (from another thread) returns a consistent
     result with status `interrupted` whose checkpoint resumes to exactly the
     uninterrupted solve."""
-    import podilqr_jax.interrupts as interrupts
+    import podilqr_jax.ilqr.interrupts as interrupts
 
     if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         pytest.skip("another SIGINT handler is installed in this process")
@@ -170,7 +170,7 @@ def test_a_format_2_checkpoint_resumes_as_written(noisy_task, tmp_path):
     """Format 2 wrote the counters and histories flat, under the driver's old
     names; format 3 keeps them as the result's record. A checkpoint rewritten
     into format 2's layout resumes to the same result as format 3's."""
-    from podilqr_jax.checkpoint import _FORMAT_2_NAMES, FILE
+    from podilqr_jax.ilqr.checkpoint import _FORMAT_2_NAMES, FILE
 
     cfg = pj.default_config(noisy_task, n_s=12, max_iterations=5, seed=4)
     new, old = tmp_path / "3", tmp_path / "2"

@@ -1,10 +1,10 @@
-"""Smoke test of the benchmark of what the robust defaults cost (``podilqr_jax.bench.defaults_cost``)."""
+"""Smoke test of the benchmark of what the robust defaults cost (``podilqr_jax.studies.bench.defaults_cost``)."""
 
 import json
 
 import pytest
 
-from podilqr_jax.bench import defaults_cost
+from podilqr_jax.studies.bench import defaults_cost
 
 
 def test_the_defaults_cost_benchmark_reports_both_settings(tmp_path, capsys):

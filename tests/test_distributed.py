@@ -25,7 +25,7 @@ RUN = textwrap.dedent(
         jax.distributed.initialize(coordinator_address=f"127.0.0.1:{port}", num_processes=n, process_id=pid,
                                    initialization_timeout=120)
     import podilqr_jax as pj
-    from podilqr_jax.rollout import batch_sharding
+    from podilqr_jax.sim.rollout import batch_sharding
     env = pj.make_task("pendulum-full", horizon=6, noise="paper")
     cfg = pj.default_config(env, variant="averaged", n_s=8, n_avg=2, n_forward=2, n_alphas=3, max_iterations=2)
     r = pj.solve(env, cfg)

@@ -8,7 +8,7 @@ import os
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.tasks import MODELS_DIR
+from podilqr_jax.task.tasks import MODELS_DIR
 
 PENDULUM = os.path.join(MODELS_DIR, "pendulum.xml")
 

@@ -47,7 +47,7 @@ import numpy as np
 import pytest
 
 import podilqr_jax  # noqa: F401  (enables float64 in JAX)
-from podilqr_jax.estimators import fit_information_model_iv
+from podilqr_jax.identify.estimators import fit_information_model_iv
 
 # Exact data, the same coefficients recovered by an exact solve: float64
 # round-off of these small problems is ~1e-14 relative (measured <= 2e-14).

@@ -17,9 +17,9 @@ import pytest
 
 import podilqr_jax as pj
 from podilqr_jax.cli import main
-from podilqr_jax.episodes import EpisodeNoise, run_episodes
-from podilqr_jax.evaluate import CONTROLLERS, EvaluateSettings, run_evaluation
-from podilqr_jax.replan import replan_episodes, shifted
+from podilqr_jax.control.replan import replan_episodes, shifted
+from podilqr_jax.sim.episodes import EpisodeNoise, run_episodes
+from podilqr_jax.studies.evaluate import CONTROLLERS, EvaluateSettings, run_evaluation
 
 HORIZON = 10
 
@@ -145,7 +145,7 @@ def test_run_evaluation_writes_the_report(solved, tmp_path):
         assert at_zero[c]["mean_cost"] == pytest.approx(result.final_cost, rel=1e-9)
     assert at_zero["model_based"]["mean_cost"] == pytest.approx(report["model_based_cost"], rel=1e-9)
     assert saved["replan_compiles_after_first"] == 0
-    assert saved["machine"]["backend"] == "cpu" and saved["machine"]["cpu_count"] >= 1  # podilqr_jax.machine
+    assert saved["machine"]["backend"] == "cpu" and saved["machine"]["cpu_count"] >= 1  # podilqr_jax.studies.machine
 
 
 def _write_result(tmp_path, solved) -> str:
@@ -202,7 +202,7 @@ def test_cli_evaluate_refuses_a_missing_or_foreign_file(tmp_path, capsys):
 
 
 def test_actuator_limits_are_the_models_ctrlrange_else_a_multiple_of_the_largest_control():
-    from podilqr_jax.evaluate import actuator_limits
+    from podilqr_jax.studies.evaluate import actuator_limits
 
     low, high = actuator_limits(pj.make_task("doublependulum-full"), np.array([8.0, 2.0]), 2.0)
     np.testing.assert_array_equal(low, [-7.0, -1.8])

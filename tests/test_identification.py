@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.info_state import info_dim
-from podilqr_jax.rollout import open_loop_policy, perturbation_rollouts, rollout_batch
+from podilqr_jax.identify.info_state import info_dim
+from podilqr_jax.sim.rollout import open_loop_policy, perturbation_rollouts, rollout_batch
 
 HORIZON = 12
 SIGMAS = (1e-2, 1e-3, 1e-4)

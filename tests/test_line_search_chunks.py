@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.info_state import info_dim
-from podilqr_jax.line_search import line_search
-from podilqr_jax.rollout import Policy, bytes_per_rollout
+from podilqr_jax.identify.info_state import info_dim
+from podilqr_jax.ilqr.line_search import line_search
+from podilqr_jax.sim.rollout import Policy, bytes_per_rollout
 
 HORIZON = 6
 N_FWD = 5

@@ -20,9 +20,9 @@ import pytest
 from linear_gaussian import random_ltv, rel_err
 
 import podilqr_jax  # noqa: F401  (enables float64 in JAX)
-from podilqr_jax.backward import QuadraticCost, Regularisation, backward_pass, riccati
-from podilqr_jax.info_state import companion, info_dim, info_states, initial_info_state, shift
-from podilqr_jax.sysid import LinearModel, fit_information_model
+from podilqr_jax.identify.info_state import companion, info_dim, info_states, initial_info_state, shift
+from podilqr_jax.identify.sysid import LinearModel, fit_information_model
+from podilqr_jax.ilqr.backward import QuadraticCost, Regularisation, backward_pass, riccati
 
 # Tolerances. Everything runs in float64 (eps ~ 2.2e-16). The fits are SVD
 # least-squares solves of small, well-conditioned problems (condition numbers

@@ -13,9 +13,8 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.info_state import info_dim
-from podilqr_jax.noise import sample
-from podilqr_jax.rollout import (
+from podilqr_jax.identify.info_state import info_dim
+from podilqr_jax.sim.rollout import (
     Trajectory,
     average_repeats,
     injected_perturbations,
@@ -23,6 +22,7 @@ from podilqr_jax.rollout import (
     perturbation_rollouts,
     rollout_batch,
 )
+from podilqr_jax.task.noise import sample
 
 # Small problems: short horizon, few iterations (compile time dominates on CPU).
 HORIZON = 10

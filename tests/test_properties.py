@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import podilqr_jax as pj
-from podilqr_jax.tasks import MODELS_DIR
+from podilqr_jax.task.tasks import MODELS_DIR
 
 PENDULUM = os.path.join(MODELS_DIR, "pendulum.xml")
 CARTPOLE = os.path.join(MODELS_DIR, "cartpole.xml")

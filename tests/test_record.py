@@ -9,9 +9,9 @@ import json
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.checkpoint import fingerprint, load_checkpoint, save_checkpoint
-from podilqr_jax.rollout import on_device
-from podilqr_jax.state import Nominal, Record, SolverState
+from podilqr_jax.ilqr.checkpoint import fingerprint, load_checkpoint, save_checkpoint
+from podilqr_jax.ilqr.state import Nominal, Record, SolverState
+from podilqr_jax.sim.rollout import on_device
 
 
 def _distinct_record() -> Record:

@@ -12,7 +12,7 @@ stages), so the comparison is exact, not a margin.
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.config import reidentify_scale
+from podilqr_jax.ilqr.config import reidentify_scale
 
 
 def test_reidentify_scales_alternate_smaller_then_larger():
@@ -69,8 +69,8 @@ def test_when_every_scale_fails_the_solve_changes_the_experiment(pendulum):
 
 
 def test_the_experiments_of_the_recovery_come_in_order():
-    from podilqr_jax.driver import next_experiment
-    from podilqr_jax.state import SolverState
+    from podilqr_jax.ilqr.driver import next_experiment
+    from podilqr_jax.ilqr.state import SolverState
 
     st = SolverState(nominal=None, gains=None, key=None, ls_key=None, mu=1.0)
     assert next_experiment(st, closed_loop=True) == "mirrored"

@@ -12,7 +12,7 @@ import json
 import pytest
 
 from podilqr_jax.cli import main
-from podilqr_jax.reproduce import format_table
+from podilqr_jax.studies.reproduce import format_table
 
 ROW_KEYS = {
     "system",

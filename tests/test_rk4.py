@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from podilqr_jax import rk4
-from podilqr_jax.package_files import resolve_model_path
+from podilqr_jax.sim import rk4
+from podilqr_jax.task.package_files import resolve_model_path
 
 XML = """
 <mujoco>

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.info_state import info_dim
-from podilqr_jax.rollout import open_loop_policy, perturbation_rollouts
+from podilqr_jax.identify.info_state import info_dim
+from podilqr_jax.sim.rollout import open_loop_policy, perturbation_rollouts
 
 HORIZON = 8
 
@@ -80,7 +80,7 @@ _SHARDED_RUN = textwrap.dedent(
     import json, sys
     import jax, numpy as np
     import podilqr_jax as pj
-    from podilqr_jax.rollout import batch_sharding
+    from podilqr_jax.sim.rollout import batch_sharding
     env = pj.make_task("pendulum-full", horizon=8, noise="paper")
     cfg = pj.default_config(env, variant="averaged", n_s=8, n_avg=2, n_forward=2, n_alphas=3, max_iterations=3)
     r = pj.solve(env, cfg)

@@ -18,11 +18,11 @@ import pytest
 
 import podilqr_jax as pj
 from podilqr_jax.cli import main as cli_main
-from podilqr_jax.model_based import nonfinite_hint
-from podilqr_jax.noise import sample
-from podilqr_jax.package_files import resolve_model_path
-from podilqr_jax.rollout import open_loop_policy, physics_step, rollout_batch, with_state
-from podilqr_jax.taskfile import load_task
+from podilqr_jax.identify.model_based import nonfinite_hint
+from podilqr_jax.sim.rollout import open_loop_policy, physics_step, rollout_batch, with_state
+from podilqr_jax.task.noise import sample
+from podilqr_jax.task.package_files import resolve_model_path
+from podilqr_jax.task.taskfile import load_task
 
 pytest.importorskip("dm_control", reason="the `test` extra installs dm-control")
 pytest.importorskip("gymnasium", reason="the `test` extra installs gymnasium")

@@ -1,0 +1,1 @@
+"""Control: a finished solve as a controller, the Kalman estimator, receding-horizon replanning."""

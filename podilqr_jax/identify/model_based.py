@@ -1,0 +1,62 @@
+"""Exact linearisation of the MJX dynamics (the model-based reference).
+
+The control-step map x_{t+1} = f(x_t, u_t) (``substeps`` MuJoCo steps) is
+differentiated in forward mode (one JVP per column) at every nominal (x_bar_t, u_bar_t), giving
+the true LTV model A_t = df/dx, B_t = df/du on the full state. The model-based
+iLQR runs the same backward pass and line search on it; it is the reference
+optimum for tests, benchmarks and the noisy studies.
+
+Shapes: x_bar [T+1, nx], u_bar [T, nu]; A [T, nx, nx], B [T, nx, nu].
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+
+from ..sim.rollout import physics_step, state_of, with_state
+from ..sim.stages import stage
+from ..task.env import EnvData, EnvDims
+from .sysid import LinearModel
+
+
+@stage(static_argnames=("dims",), outputs=(LinearModel,))
+def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar) -> LinearModel:
+    """(A_t, B_t) = Jacobians of the control-step map along (x_bar, u_bar)."""
+    d0 = mjx.make_data(data.model)
+
+    def f(x, u):
+        return state_of(physics_step(dims, data.model, with_state(dims, d0, x), u))
+
+    # A control on its ctrlrange bound is moved inside by 1e-9 of the range:
+    # MuJoCo's clamp has no derivative there, and B must be the interior one
+    # (the backward pass's box QP handles the bound).
+    span = jnp.where(jnp.isfinite(data.u_high - data.u_low), data.u_high - data.u_low, 0.0)
+    u_lin = jnp.clip(u_bar, data.u_low + 1e-9 * span, data.u_high - 1e-9 * span)
+    # Column j of [A_t B_t] is the JVP of f at (x_bar_t, u_t) along the unit
+    # vector e_j: one vmap over the T (nx + nu) pairs (t, j) of a single JVP.
+    # The same columns as ``vmap(jacfwd(f))`` to round-off (the model-based
+    # solves of the bundled tasks end at the same costs to 1e-15 relative),
+    # with one batching level instead of two: a cheaper trace and XLA compile
+    # (docs/performance.md). The primal is recomputed per column.
+    T, nx, nu = u_bar.shape[0], dims.nx, dims.nu
+    n = nx + nu
+    x_rep = jnp.repeat(x_bar[:-1], n, axis=0)
+    u_rep = jnp.repeat(u_lin, n, axis=0)
+    e = jnp.tile(jnp.eye(n, dtype=x_bar.dtype), (T, 1))
+    _, cols = jax.vmap(lambda x, u, e_j: jax.jvp(f, (x, u), (e_j[:nx], e_j[nx:])))(x_rep, u_rep, e)
+    AB = jnp.swapaxes(cols.reshape(T, n, nx), 1, 2)  # [T, nx, nx + nu]
+    return LinearModel(AB[:, :, :nx], AB[:, :, nx:])
+
+
+def nonfinite_hint(mj_model: mujoco.MjModel) -> str:
+    """Why MJX's exact Jacobian may hold NaN, where the model says so (for the
+    message of a model-based solve that stops ``nonfinite``)."""
+    if mj_model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC:
+        return (
+            " (the model uses the elliptic friction cone, whose forward-mode derivative in MJX is NaN at an "
+            'active contact; with <option cone="pyramidal"/> it is finite. POD-iLQR itself needs no derivative)'
+        )
+    return ""

@@ -1,0 +1,380 @@
+"""Solver settings, validated in Python before anything is traced.
+
+Static fields (shapes and loop bounds: ``q``, ``n_s``, ``n_alphas``) are
+compiled into the jitted functions; the rest enter as traced scalars, so
+sweeping ``sigma`` or a tolerance never recompiles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Optional
+
+from ..errors import ConfigError
+from ..identify.estimators import ESTIMATORS, n_instruments
+from ..identify.info_state import n_regressors
+from ..task.env import Env
+
+IMPLS = ("jax", "warp")
+"""MJX's implementations a solve can run its rollouts on (``SolverConfig.impl``):
+``jax`` (the default, any device) and ``warp`` (NVIDIA Warp kernels, on a CUDA
+GPU or the CPU; needs ``warp-lang``: ``pip install 'podilqr_jax[cuda]'``).
+MJX 3.17 also has ``cpp`` (MuJoCo's C engine as a JAX call), which its
+``make_data`` ties to host-side references that a jitted, vmapped rollout
+cannot carry; it is not offered."""
+
+SIGMA_SCALES = ("actuator", "absolute")
+"""The units of ``SolverConfig.sigma``: each actuator's half ctrlrange where it
+is limited (``actuator``), or one sigma for every actuator (``absolute``)."""
+
+PAPER_SETTINGS = {
+    "variant": "plain",
+    "cap_rank": False,
+    "adapt_sigma": False,
+    "sigma_scale": "absolute",
+    "escalate": False,
+}
+"""The settings that make ``solve`` the paper's POD-iLQR as is (and the
+defaults before the robustness work): open-loop identification, every
+direction above rcond, one fixed sigma for every actuator, no change of
+experiment before ``line_search_failed``. The serial reference
+(``bench.serial_reference``), the benchmark of what the defaults cost
+(``bench.defaults_cost``) and the paper's study (``reproduce``) use them."""
+
+VARIANTS = ("plain", "feedback", "averaged", "nominal")
+"""The paper's variants (docs/noise.md):
+
+- ``plain``: POD-iLQR as is (open-loop sysid rollouts u = u_bar + du), under
+  whatever noise the task has.
+- ``feedback``: the paper's "modified" POD-iLQR: the sysid rollouts carry the
+  previous backward pass's feedback on their own information-state deviation,
+  u = u_bar + du + K_t (Z_t - Z_bar_t). No gain exists before the first
+  backward pass, so iteration 1 identifies open loop (K = 0), like ``plain``.
+- ``averaged``: ``feedback`` plus brute-force averaging: each perturbation
+  sequence runs ``n_avg`` times and the mean trajectory enters the fit, and
+  every line-search candidate is the mean of ``n_forward`` noisy rollouts.
+- ``nominal``: the same task with all noise switched off (the reference
+  curve), identified with feedback like ``feedback``.
+"""
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverConfig:
+    """Settings of POD-iLQR (and of the model-based reference solver).
+
+    Attributes:
+      q: past observations in the information state; None picks 1 when the
+        task observes the full state and 2 otherwise.
+      n_s: sysid rollouts per iteration (must be >= q (nz + nu), the number of
+        regressors of the least-squares fit).
+      sigma: standard deviation of the sysid control perturbations du, in
+        the units ``sigma_scale`` says; with ``adapt_sigma`` the start of an
+        adaptive scale.
+      sigma_scale: ``"actuator"`` (the default): actuator j is perturbed
+        with sigma x s_j, s_j its half ``ctrlrange`` where the actuator is
+        limited (1 otherwise), so a model's units do not set the experiment;
+        ``"absolute"``: sigma for every actuator (the paper's).
+      adapt_sigma: in a noiseless data-based solve, set sigma afresh after
+        every identification from the fit's own diagnostics
+        (``adapted_sigma``): smaller where the relative fit residual (the
+        response's curvature) is above ``max_residual``, larger where the
+        residual sits on the round-off floor, always inside
+        [sigma / sigma_range, sigma x sigma_range]. The scale used at
+        every iteration is in ``Result.sigma_history`` and the progress line.
+        Under noise the residual is the noise's, not curvature, and sigma
+        stays as set (docs/robustness.md).
+      max_residual: the fit residual (RMS over the response's, all steps)
+        above which ``adapt_sigma`` reads curvature and shrinks sigma.
+      sigma_range: the adapted sigma stays within this factor of ``sigma``.
+      max_iterations: iLQR iterations at most.
+      rtol: stop when an accepted step lowers the cost by less than rtol x J,
+        or when no step can and the predicted decrease is below rtol x J.
+      gtol: stop when max_t |dJ/du_t| on the identified model is below gtol.
+      mu_init, mu_min, mu_max, mu_factor: Levenberg-Marquardt regularisation:
+        start, floor, ceiling (past it the solve stops) and growth factor.
+      n_alphas: line-search candidates alpha = 1, 1/2, ..., 2^-(n_alphas-1),
+        all rolled out as one batch.
+      accept_ratio: accept a step only if the actual decrease is at least this
+        fraction of the predicted one (and strictly positive).
+      rcond: relative singular-value cut-off of the least-squares fit.
+      seed: PRNG seed of the perturbations and of the noise (same seed, same
+        result).
+      variant: one of ``VARIANTS`` (see there): plain, feedback (the default:
+        closed-loop identification measures better gains, noiseless too; see
+        docs/robustness.md), averaged or nominal. ``plain`` is the paper's
+        POD-iLQR as is, kept as its ablation.
+      n_avg: repeats of each sysid perturbation sequence averaged before the
+        fit (``averaged`` only); None picks 10 for ``averaged`` and 1 otherwise.
+      n_forward: noisy rollouts averaged into each line-search candidate
+        (``averaged`` only); None picks ``n_s`` for ``averaged``, 1 otherwise.
+      mu_cap: under noise a rejected step never ends the solve: the nominal is
+        re-measured, mu grows but never above mu_cap, and the solve goes on.
+      estimator: the identification's estimator: ``"ols"`` (least squares, the
+        paper's) or ``"iv"`` (instrumental variables with the injected
+        perturbations and older outputs as instruments, consistent under
+        measurement noise at n_avg = 1; see ``estimators`` and
+        docs/estimators.md). Works with every variant.
+      memory_budget_mb: the sysid batch (n_s x n_avg rollouts) and the line
+        search's ((n_alphas + 1) x n_forward under noise) run in chunks that
+        fit this budget (``rollout.bytes_per_rollout`` estimates a rollout's
+        share); a batch that fits runs at once.
+      rollout_chunk: rollouts per chunk (of both batches), overriding the budget.
+      reidentify: re-identifications a noiseless data-based solve makes when no
+        step lowers the cost and mu has passed mu_max, before it stops
+        ``line_search_failed``: each one draws fresh perturbations at another
+        scale (``reidentify_scale``: sigma x 0.1, then x 10, x 0.01, x 100, ...)
+        and starts mu afresh; an accepted step returns to sigma. When they
+        are spent and ``escalate`` is on, the solve changes the experiment
+        for the rest of the solve, and goes through the scales again each
+        time: first to mirrored perturbation pairs (``mirrored``), then to
+        the paper's open-loop identification without pairs (``plain``).
+      saturated_open_loop: in closed-loop identification, no feedback on a
+        control that sits on its ctrlrange bound in the nominal, so every
+        perturbation of it acts on one side as in open loop (with the
+        feedback the response pushed it outward and the fit lost the
+        control's column; docs/robustness.md). False: the gains as they are.
+      escalate: the last recoveries before ``line_search_failed``, above
+        (measured on dm_control's cart-pole and pendulum, docs/robustness.md).
+      mirrored: roll out every sysid perturbation sequence as the pair +du,
+        -du (2 n_s x n_avg rollouts) and fit on the half-differences, which
+        cancel the response's even-order terms in du: the curvature bias of
+        the fit drops from O(sigma) to O(sigma^2), so larger perturbations
+        (above round-off and noise) still give the linear model, and the
+        nominal's own noisy measurement is never subtracted (docs/robustness.md).
+      cap_rank: in a noiseless solve, fit at each step t only as many
+        directions as the perturbations can have excited from the fixed start
+        state (``sysid.excited_rank``: nu (t + 1) in the first steps), so no
+        gain is read out of the response's curvature where nothing was
+        measured; the model and the gains are zero there. False keeps every
+        direction above ``rcond`` (the behaviour before; docs/robustness.md).
+      impl: MJX implementation of the solve's rollouts, one of ``IMPLS``
+        (``jax`` or ``warp``). The model-based reference differentiates
+        through MJX and always runs ``jax``.
+    """
+
+    q: Optional[int] = None
+    n_s: int = 40
+    sigma: float = 1e-4
+    sigma_scale: str = "actuator"
+    adapt_sigma: bool = True
+    max_residual: float = 1e-3
+    sigma_range: float = 1e3
+    max_iterations: int = 300
+    rtol: float = 1e-9
+    gtol: float = 1e-9
+    mu_init: float = 1e-6
+    mu_min: float = 1e-6
+    mu_max: float = 1e10
+    mu_factor: float = 2.0
+    n_alphas: int = 10
+    accept_ratio: float = 1e-4
+    rcond: float = 1e-10
+    seed: int = 0
+    variant: str = "feedback"
+    n_avg: Optional[int] = None
+    n_forward: Optional[int] = None
+    mu_cap: float = 1e3
+    estimator: str = "ols"
+    memory_budget_mb: float = 2048.0
+    rollout_chunk: Optional[int] = None
+    impl: str = "jax"
+    reidentify: int = 2
+    mirrored: bool = False
+    escalate: bool = True
+    saturated_open_loop: bool = True
+    cap_rank: bool = True
+
+    def replace(self, **changes: Any) -> "SolverConfig":
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise ConfigError(
+                f"Unknown solver setting(s) {sorted(unknown)}; known settings: "
+                f"{sorted(f.name for f in dataclasses.fields(self))}."
+            )
+        return dataclasses.replace(self, **changes)
+
+    def resolved_q(self, env: Env) -> int:
+        if self.q is not None:
+            return self.q
+        return 1 if fully_observed(env) else 2
+
+    def resolved_n_avg(self) -> int:
+        if self.n_avg is not None:
+            return self.n_avg
+        return 10 if self.variant == "averaged" else 1
+
+    def resolved_chunk(self, bytes_per_rollout: int, group: Optional[int] = None) -> int:
+        """Rollouts per chunk of a batch: ``rollout_chunk`` when set, else as
+        many whole groups of ``group`` rollouts (default: the sysid batch's
+        repeat groups, n_avg) as ``memory_budget_mb`` holds. The line search
+        asks with ``group=1`` and arranges its candidates itself."""
+        if self.rollout_chunk is not None:
+            return self.rollout_chunk
+        fit = int(self.memory_budget_mb * 2**20 // max(1, bytes_per_rollout))
+        group = self.resolved_n_avg() if group is None else group
+        return max(group, fit - fit % group)
+
+    def resolved_n_forward(self) -> int:
+        if self.n_forward is not None:
+            return self.n_forward
+        return self.n_s if self.variant == "averaged" else 1
+
+    def validate(self, env: Env, data_based: bool = True) -> int:
+        """Check every setting against the task; returns the q to use."""
+        if self.variant not in VARIANTS:
+            raise ConfigError(
+                f"Unknown variant {self.variant!r}; choose one of {', '.join(VARIANTS)} (see docs/noise.md)."
+            )
+        for name in ("n_avg", "n_forward"):
+            value = getattr(self, name)
+            if value is not None:
+                check_int(name, value, 1)
+                if value > 1 and self.variant != "averaged":
+                    raise ConfigError(
+                        f"`{name}`={value} only applies to variant='averaged' (got variant={self.variant!r}); "
+                        f"set variant='averaged' or drop {name}."
+                    )
+        check_impl(self.impl)
+        for name in ("mirrored", "cap_rank"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"`{name}` must be true or false; got {getattr(self, name)!r}.")
+        _positive("mu_cap", self.mu_cap)
+        _positive("memory_budget_mb", self.memory_budget_mb)
+        if self.rollout_chunk is not None:
+            check_int("rollout_chunk", self.rollout_chunk, 1)
+        if self.estimator not in ESTIMATORS:
+            raise ConfigError(
+                f"Unknown estimator {self.estimator!r}; choose one of {', '.join(ESTIMATORS)} (see docs/estimators.md)."
+            )
+        check_int("n_s", self.n_s, 1)
+        check_int("max_iterations", self.max_iterations, 1)
+        check_int("n_alphas", self.n_alphas, 1)
+        check_int("seed", self.seed, 0)
+        check_int("reidentify", self.reidentify, 0)
+        if self.q is not None:
+            check_int("q", self.q, 1)
+        if self.sigma_scale not in SIGMA_SCALES:
+            raise ConfigError(
+                f"Unknown `sigma_scale` {self.sigma_scale!r}; choose one of {', '.join(SIGMA_SCALES)} "
+                "(per actuator's ctrlrange, or one absolute sigma)."
+            )
+        if _finite_number("sigma_range", self.sigma_range) < 1:
+            raise ConfigError(f"`sigma_range` must be >= 1 (a factor either side of sigma); got {self.sigma_range!r}.")
+        for name in ("sigma", "mu_max", "mu_factor", "max_residual"):
+            _positive(name, getattr(self, name))
+        for name in ("rtol", "gtol", "mu_init", "mu_min", "accept_ratio", "rcond"):
+            check_nonnegative(name, getattr(self, name))
+        if self.mu_factor <= 1:
+            raise ConfigError(f"`mu_factor` must be > 1 so that regularisation can grow; got {self.mu_factor!r}.")
+        if self.mu_min > self.mu_max:
+            raise ConfigError(
+                f"`mu_min` ({self.mu_min:g}) is above `mu_max` ({self.mu_max:g}); choose mu_min <= mu_max."
+            )
+        q = self.resolved_q(env) if data_based else 1
+        T = env.dims.horizon
+        if T <= q:
+            raise ConfigError(
+                f"The horizon T={T} must exceed q={q}: the information state spans q "
+                f"steps. Use a horizon of at least {q + 1} or lower q."
+            )
+        if data_based and self.estimator == "iv":
+            m = n_instruments(env.dims.nz, env.dims.nu, q)
+            if self.n_s < 2 * m:
+                raise ConfigError(
+                    f"`n_s`={self.n_s} is too small for estimator='iv': its {m} instruments (q={q}, "
+                    f"nz={env.dims.nz}, nu={env.dims.nu}) need n_s >= {2 * m}, and n_s >= {10 * m} keeps the "
+                    "estimate from leaning toward least squares. Raise n_s or use estimator='ols'."
+                )
+        if data_based:
+            p = n_regressors(env.dims.nz, env.dims.nu, q)
+            if self.n_s < p:
+                raise ConfigError(
+                    f"`n_s`={self.n_s} is below the {p} regressors of the ARMA fit at "
+                    f"q={q} (q x (nz + nu) with nz={env.dims.nz}, nu={env.dims.nu}): the "
+                    f"least squares would be underdetermined. Use n_s >= {p} (a few "
+                    "times more is better), or lower q."
+                )
+        return q
+
+
+def check_impl(impl: Any) -> None:
+    """Refuse an MJX implementation that is unknown or not installed, saying how to get it."""
+    if impl not in IMPLS:
+        raise ConfigError(
+            f"Unknown `impl` {impl!r}; choose one of {', '.join(IMPLS)} (MJX's JAX or Warp implementation)."
+        )
+    if impl == "warp":
+        from mujoco.mjx import warp as mjx_warp  # imported (quietly) with the package
+
+        if not getattr(mjx_warp, "WARP_INSTALLED", False):
+            raise ConfigError(
+                "`impl`='warp' runs MJX's Warp implementation, which needs the `warp-lang` package (not "
+                "installed here). Install it with `pip install 'podilqr_jax[cuda]'` (GPU builds of JAX and "
+                "Warp) or `pip install warp-lang`, or use impl='jax'."
+            )
+
+
+def fully_observed(env: Env) -> bool:
+    """True when the observation determines the whole state (C square, full rank)."""
+    return env.dims.nz == env.dims.nx
+
+
+def check_int(name: str, value: Any, minimum: int) -> None:
+    """Raise a ConfigError unless ``value`` is an integer >= ``minimum`` (settings checks, also ``evaluate``'s)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"`{name}` must be an integer >= {minimum}; got {value!r}.")
+
+
+def _finite_number(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"`{name}` must be a finite number; got {value!r}.")
+    return float(value)
+
+
+def _positive(name: str, value: Any) -> None:
+    if _finite_number(name, value) <= 0:
+        raise ConfigError(f"`{name}` must be > 0; got {value!r}.")
+
+
+def check_nonnegative(name: str, value: Any) -> None:
+    """Raise a ConfigError unless ``value`` is a finite number >= 0."""
+    if _finite_number(name, value) < 0:
+        raise ConfigError(f"`{name}` must be >= 0; got {value!r}.")
+
+
+def reidentify_scale(attempt: int) -> float:
+    """The factor on sigma of re-identification ``attempt`` (1, 2, ...): 0.1, 10, 0.01, 100, ...
+    (0 is the configured sigma). Smaller first: a step that the model promised
+    and the system refused is most often the curvature a large perturbation
+    read as slope; larger next, for a fit lost in round-off or noise."""
+    if attempt <= 0:
+        return 1.0
+    decades = (attempt + 1) // 2
+    return 10.0 ** (-decades if attempt % 2 else decades)
+
+
+def adapted_sigma(sigma: float, rho: float, floor: float, order: int, cfg: "SolverConfig") -> float:
+    """The sysid scale for the next identification, from the last one's fit.
+
+    ``rho`` is the fit's relative residual (RMS of the residual over the RMS
+    of the response, all steps), ``floor`` the round-off's share of it
+    (``eps x`` RMS of the nominal's observations over the RMS of the
+    response) and ``order`` how the curvature part grows with sigma (1 for
+    least squares on the raw rollouts; 2 for mirrored pairs, whose even
+    terms cancel). Noiseless, rho is curvature (``~ sigma^order``) plus
+    round-off (``~ 1 / sigma``):
+
+    - rho above ``cfg.max_residual``: curvature; shrink sigma to put rho a
+      decade below it (by 10x at most per identification);
+    - rho within 10x of the floor: round-off; grow sigma 10x;
+    - else keep sigma.
+
+    The result stays within ``cfg.sigma_range`` of ``cfg.sigma``.
+    """
+    new = sigma
+    if rho > cfg.max_residual:
+        new = sigma * max(0.1, (0.1 * cfg.max_residual / rho) ** (1.0 / order))
+    elif rho < 10.0 * floor:
+        new = sigma * 10.0
+    return float(min(max(new, cfg.sigma / cfg.sigma_range), cfg.sigma * cfg.sigma_range))

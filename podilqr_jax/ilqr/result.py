@@ -1,0 +1,280 @@
+"""What a solve returns: the solution, its history and why it stopped."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import json
+import math
+import os
+import tempfile
+from typing import Any
+
+import numpy as np
+
+from .state import Record
+
+
+class Status(str, enum.Enum):
+    """Why a solve stopped."""
+
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "max_iterations"
+    LINE_SEARCH_FAILED = "line_search_failed"
+    NONFINITE = "nonfinite"
+    NO_RESPONSE = "no_response"
+    INTERRUPTED = "interrupted"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclasses.dataclass(frozen=True)
+class IterationInfo:
+    """One row of the live report (handed to the ``callback`` of a solve)."""
+
+    iteration: int
+    cost: float
+    alpha: float
+    mu: float
+    grad_norm: float
+    accepted: bool
+    rollouts: int
+    rollouts_per_s: float
+    wall_s: float
+    true_cost: float = float("nan")  # the policy's cost on the noiseless system
+    note: str = ""  # what happened out of the ordinary (a retry, left-out rollouts)
+    sigma: float = float("nan")  # the sysid scale of the iteration's identification (NaN: none, or model-based)
+
+
+@dataclasses.dataclass
+class Result:
+    """The outcome of :func:`podilqr_jax.solve` or :func:`solve_model_based`.
+
+    Arrays are NumPy (host) arrays. The learnt policy is
+    u_t = controls_t + K_t (Z_t - info_states_t): ``K`` are the gains that go
+    with the nominal (those of the backward pass that produced it), ``k`` the
+    last backward pass's feed-forward step. ``states`` are the nominal's full
+    MuJoCo states [T+1, nq + nv] and ``observations`` their noise-free C x.
+
+    The counters and histories are ``record`` (a :class:`~podilqr_jax.ilqr.state.Record`),
+    held as the solve counted them and read as attributes of the result too
+    (``result.cost_history`` is ``result.record.cost_history``).
+    ``cost_history`` is the cost the algorithm sees (under noise: the cost of
+    a noisy nominal). ``true_cost_history`` is the policy's cost run closed
+    loop on the noiseless system and ``open_loop_cost_history`` the nominal
+    controls replayed open loop on it (equal to ``cost_history`` without
+    noise). Under noise a rejected step re-measures the nominal
+    (``remeasured``); ``longest_rejection_streak`` shows a frozen run.
+    """
+
+    method: str
+    task: str
+    status: Status
+    message: str
+    controls: np.ndarray  # [T, nu]
+    observations: np.ndarray  # [T+1, nz]
+    states: np.ndarray  # [T+1, nx]
+    info_states: np.ndarray  # [T+1, nZ]
+    K: np.ndarray  # [T, nu, nZ]
+    k: np.ndarray  # [T, nu]
+    q: int
+    record: Record  # the counters and histories (iterations, rollouts, cost_history, ...)
+    wall_s: float
+    compile_s: float
+    run_s: float
+    compiles_per_iteration: list[int]
+    phase_s: dict[str, float]
+    config: dict[str, Any]
+    control_dt: float
+    observation_labels: tuple[str, ...] = ()
+    state_labels: tuple[str, ...] = ()
+    variant: str = "plain"
+    noisy: bool = False
+    noise: dict[str, float] = dataclasses.field(default_factory=dict)
+    warnings: list[str] = dataclasses.field(default_factory=list)  # also the options switched off for MJX
+    control_limits: list = dataclasses.field(default_factory=list)  # [nu][low, high] ctrlrange; [] when unlimited
+    sigma_units: list = dataclasses.field(default_factory=list)  # [nu] (cfg.sigma_scale)
+    mirrored: bool = False  # the identification ran mirrored pairs at the end (cfg.mirrored or a recovery)
+    open_loop: bool = False  # ... and open loop (variant plain, or a recovery switched to it)
+
+    def __getattr__(self, name: str):
+        """The record's counters and histories as attributes of the result."""
+        record = self.__dict__.get("record")
+        if record is not None and name in _RECORD_NAMES:
+            return getattr(record, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    @property
+    def final_cost(self) -> float:
+        return self.cost_history[-1]
+
+    @property
+    def final_true_cost(self) -> float:
+        """The final policy's cost on the noiseless system (closed loop)."""
+        return self.true_cost_history[-1] if self.true_cost_history else self.final_cost
+
+    def policy(self, name: str | None = None):
+        """This solve as a controller (:class:`~podilqr_jax.control.policy.FeedbackPolicy`):
+        u_t = controls_t + K_t (Z_t - info_states_t) on the measured
+        information state (on the full state for a model-based result)."""
+        from ..control.policy import FeedbackPolicy
+
+        return FeedbackPolicy.from_result(self, name)
+
+    def animate(self, path: str | os.PathLike, env=None, **options):
+        """Write the nominal motion as a GIF (or MP4) at real time, with the
+        time and the cost so far on each frame; ``options`` as
+        :func:`podilqr_jax.viz.animate.animate` (``episodes``, ``noise``,
+        ``compare``, ``width``, ``height``, ``fps``, ``renderer`` ...).
+        ``env``: the task (default: rebuilt from ``task``)."""
+        from ..viz.animate import animate
+
+        return animate(self, path, env=env, **options)
+
+    @property
+    def converged(self) -> bool:
+        return self.status == Status.CONVERGED
+
+    @property
+    def recompiles_after_first(self) -> int:
+        return int(sum(self.compiles_per_iteration[1:]))
+
+    def summary(self) -> str:
+        text = (
+            f"{self.method} on {self.task}: {self.status} after {self.iterations} iterations "
+            f"({self.message}); cost {self.cost_history[0]:.6g} -> {self.final_cost:.6g}; "
+            f"{self.rollouts} rollouts; {self.wall_s:.2f} s wall ({self.compile_s:.2f} s compiling)"
+        )
+        if self.noisy:
+            text += (
+                f"; variant {self.variant} under noise {self.noise}: true cost (policy, closed loop, "
+                f"noiseless) {self.final_true_cost:.6g}, open-loop replay {self.open_loop_cost_history[-1]:.6g}; "
+                f"{self.rejected_steps} rejected steps, longest streak {self.longest_rejection_streak}, "
+                f"nominal re-measured {self.remeasured} times"
+            )
+        return text
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "method": self.method,
+            "task": self.task,
+            "status": str(self.status),
+            "message": self.message,
+            "final_cost": self.final_cost,
+            "final_true_cost": self.final_true_cost,
+            "variant": self.variant,
+            "noisy": self.noisy,
+            "noise": self.noise,
+            **self.record.as_dict(),
+            "sigma_units": self.sigma_units,
+            "mirrored": self.mirrored,
+            "open_loop": self.open_loop,
+            "warnings": list(self.warnings),
+            "control_limits": [[float(lo), float(hi)] for lo, hi in self.control_limits],
+            "controls": self.controls.tolist(),
+            "observations": self.observations.tolist(),
+            "states": self.states.tolist(),
+            "info_states": self.info_states.tolist(),
+            "K": self.K.tolist(),
+            "k": self.k.tolist(),
+            "q": self.q,
+            "wall_s": self.wall_s,
+            "compile_s": self.compile_s,
+            "run_s": self.run_s,
+            "compiles_per_iteration": self.compiles_per_iteration,
+            "recompiles_after_first": self.recompiles_after_first,
+            "phase_s": self.phase_s,
+            "config": self.config,
+            "control_dt": self.control_dt,
+            "observation_labels": list(self.observation_labels),
+            "state_labels": list(self.state_labels),
+        }
+
+    def save_json(self, path: str | os.PathLike) -> None:
+        """Write the result as JSON atomically (a temporary file, then rename)."""
+        write_json_atomic(path, self.to_dict())
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Result":
+        """The inverse of :meth:`to_dict` (JSON nulls become NaN)."""
+        fields = {f.name for f in dataclasses.fields(cls)}
+        kwargs = {k: v for k, v in d.items() if k in fields}
+        for name in ("controls", "observations", "states", "K", "k"):
+            kwargs[name] = np.asarray(d[name], dtype=float)
+        if "info_states" in d:
+            kwargs["info_states"] = np.asarray(d["info_states"], dtype=float)
+        else:  # written before info_states were saved: rebuild them from the nominal
+            from ..identify.info_state import info_states
+
+            kwargs["info_states"] = np.asarray(info_states(kwargs["observations"], kwargs["controls"], int(d["q"])))
+        kwargs["record"] = Record.from_dict(d)
+        kwargs["control_limits"] = [
+            [-math.inf if lo is None else float(lo), math.inf if hi is None else float(hi)]
+            for lo, hi in d.get("control_limits", [])
+        ]
+        kwargs["status"] = Status(d["status"])
+        kwargs["observation_labels"] = tuple(d.get("observation_labels", ()))
+        kwargs["state_labels"] = tuple(d.get("state_labels", ()))
+        return cls(**kwargs)
+
+
+_RECORD_NAMES = Record.names()
+
+
+def load_result(path: str | os.PathLike) -> Result:
+    """A result written by ``Result.save_json`` or ``podilqr solve --out``."""
+    from ..errors import ConfigError
+
+    try:
+        with open(path) as f:
+            d = json.load(f)
+    except FileNotFoundError:
+        raise ConfigError(
+            f"No result file at {os.fspath(path)!r}; write one with `podilqr solve TASK --out PATH`."
+        ) from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"Cannot read the result file {os.fspath(path)!r}: {exc}.") from None
+    required = ("method", "task", "status", "controls", "observations", "states", "K", "k", "q", "cost_history")
+    missing = [k for k in required if k not in d] if isinstance(d, dict) else list(required)
+    if missing:
+        raise ConfigError(
+            f"{os.fspath(path)!r} is not a podilqr result (missing {', '.join(missing)}); "
+            "give the JSON written by `podilqr solve --out`."
+        )
+    try:
+        return Result.from_dict(d)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"The result file {os.fspath(path)!r} is malformed: {exc}.") from None
+
+
+def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
+    """Write ``obj`` as JSON to ``path`` through a temporary file renamed over it,
+    with the permissions a plain ``open(path, "w")`` would give (mkstemp's
+    file is owner-only)."""
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=directory)
+    umask = os.umask(0)
+    os.umask(umask)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(_jsonable(obj), f, indent=1)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, np.generic):
+        return _jsonable(obj.item())
+    return obj

@@ -1,0 +1,190 @@
+"""``solve`` and ``solve_model_based``: a solve's settings checked, its context built, the driver run.
+
+Each iteration of POD-iLQR:
+  1. identification: ``n_s`` perturbation rollouts about the nominal (one MJX
+     batch) and a per-step least-squares ARMA fit (``identification``, ``sysid``);
+  2. backward pass with adaptive Levenberg-Marquardt regularisation (``backward``);
+  3. forward pass: every step size of the line search as one MJX batch (``line_search``).
+The model-based reference replaces step 1 by exact Jacobians (``model_based``).
+This module validates the inputs, places the task's arrays on the device and
+fixes everything that does not change between iterations in the driver's
+frozen :class:`~podilqr_jax.ilqr.driver.Context`; ``driver`` runs the loop
+(init / step / terminate) and ``stopping`` holds every rule that ends it.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Optional
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ConfigError
+from ..identify.identification import Exact, actuator_units, data_based
+from ..identify.info_state import info_dim, observation_selector
+from ..identify.model_based import nonfinite_hint
+from ..sim.rollout import bytes_per_rollout, on_device
+from ..task.env import Env, mjx_model_of
+from .backward import QuadraticCost, Regularisation
+from .checkpoint import fingerprint
+from .config import SolverConfig
+from .driver import Callback, Context, RunOptions, run
+from .result import Result
+
+__all__ = ["Callback", "RunOptions", "default_config", "solve", "solve_model_based"]
+
+
+def default_config(env: Env, **overrides) -> SolverConfig:
+    """The task's recommended settings (``env`` defaults), with overrides."""
+    settings = dict(env.solver_defaults)
+    settings.update(overrides)
+    return SolverConfig().replace(**settings)
+
+
+def solve(
+    env: Env,
+    cfg: Optional[SolverConfig] = None,
+    *,
+    u_init=None,
+    callback: Optional[Callback] = None,
+    checkpoint: Optional[str | os.PathLike] = None,
+    checkpoint_every: int = 10,
+    resume: Optional[str | os.PathLike] = None,
+) -> Result:
+    """POD-iLQR: optimise the controls of ``env`` from rollouts alone.
+
+    Args:
+      env: the task (see :class:`Env`, :func:`make_task`).
+      cfg: solver settings; default :func:`default_config` of the task.
+      u_init: initial nominal controls [T, nu]; default zeros.
+      callback: called with an :class:`IterationInfo` after every iteration.
+      checkpoint: a folder; the solver state is saved there (atomically, as
+        ``checkpoint.npz``) every ``checkpoint_every`` iterations and when
+        the solve stops (see ``checkpoint``).
+      resume: a checkpoint folder to continue from: the same task and
+        settings (``max_iterations`` may be raised) give the same result, bit
+        for bit, as a run that was never stopped. ``u_init`` is then unused.
+
+    Returns:
+      A :class:`Result`; its ``status`` says why the solve stopped. Ctrl-C
+      (SIGINT, from the main thread) stops the solve after the iteration it
+      lands in (a second Ctrl-C at once) and returns the result of the last
+      completed iteration with status ``interrupted`` (see ``interrupts``).
+    """
+    cfg = default_config(env) if cfg is None else cfg
+    q = cfg.validate(env, data_based=True)
+    run_options = _run_options(checkpoint, checkpoint_every, resume)
+    dims, data = env.dims, on_device(_in_impl(env, cfg.impl))
+    noisy = env.noisy and cfg.variant != "nominal"
+    identify = data_based(env, cfg, q, data, noisy)
+    ctx = _context("pod-ilqr", env, dims, data, cfg, q, identify, noisy, cfg.resolved_n_forward())
+    return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
+
+
+def solve_model_based(
+    env: Env,
+    cfg: Optional[SolverConfig] = None,
+    *,
+    u_init=None,
+    callback: Optional[Callback] = None,
+    checkpoint: Optional[str | os.PathLike] = None,
+    checkpoint_every: int = 10,
+    resume: Optional[str | os.PathLike] = None,
+) -> Result:
+    """The model-based reference: iLQR with exact MJX Jacobians on the full state.
+
+    Same task, cost, backward pass, line search and stopping rules as
+    :func:`solve`; the identification is replaced by forward-mode derivatives through
+    ``mjx.step``. The data-based settings (``q``, ``n_s``, ``sigma``) are unused.
+    """
+    cfg = default_config(env) if cfg is None else cfg
+    cfg.validate(env, data_based=False)
+    run_options = _run_options(checkpoint, checkpoint_every, resume)
+    view = env.full_state_view()
+    dims, data = view.dims, on_device(view.data)
+    identify = Exact(dims, data, nonfinite_hint(env.mj_model))
+    ctx = _context("model-based", env, dims, data, cfg, 1, identify, False, 1)
+    return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
+
+
+def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int) -> Context:
+    """Everything the driver keeps fixed; ``dims, data`` are the task as the
+    solver sees it (its data committed to the device), ``env`` as the user gave it."""
+    # Only a data-based fit has something to re-draw; under noise a rejected step never stops the solve.
+    reidentify = cfg.reidentify if method == "pod-ilqr" and not noisy else 0
+    box = (data.u_low, data.u_high) if env.limited else (None, None)
+    selector = observation_selector(dims.nz, dims.nu, q)
+    steps = 0.5 ** np.arange(cfg.n_alphas)
+    # Under noise alpha = 0 is the last candidate: when nothing is accepted it
+    # is a fresh measurement of the current policy (see line_search).
+    alphas = on_device(np.append(steps, 0.0) if noisy else steps)
+    ls_rollouts = int(alphas.shape[0]) * n_fwd
+    ls_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1)
+    return Context(
+        method=method,
+        env=env,
+        dims=dims,
+        data=data,
+        cfg=cfg,
+        q=q,
+        identify=identify,
+        noisy=noisy,
+        n_fwd=n_fwd,
+        nZ=info_dim(dims.nz, dims.nu, q),
+        reidentify=reidentify,
+        escalate=reidentify > 0 and cfg.escalate,
+        closed_loop=cfg.variant != "plain",
+        cost_model=QuadraticCost(selector, data.z_target, data.Q, data.QT, data.R, data.goal_step, *box),
+        reg=Regularisation(on_device(cfg.mu_min), on_device(cfg.mu_max), on_device(cfg.mu_factor)),
+        steps=steps,
+        alphas=alphas,
+        ls_rollouts=ls_rollouts,
+        ls_chunk=None if ls_chunk >= ls_rollouts else ls_chunk,  # one compile for every budget that fits
+        accept_ratio=on_device(cfg.accept_ratio),
+        zero_k=on_device(np.zeros((dims.horizon, dims.nu))),
+        no_change=on_device(0.0),
+        fingerprint=fingerprint(method, env, dims, cfg),
+        to_device=on_device,
+        units=actuator_units(env, cfg).tolist() if method == "pod-ilqr" else [],
+    )
+
+
+def _in_impl(env: Env, impl: str):
+    """The task's data with its MJX model in implementation ``impl`` (``SolverConfig.impl``)."""
+    if impl == "jax":
+        return env.data
+    model, _ = mjx_model_of(env.mj_model, env.name, impl=impl)
+    return env.data._replace(model=model)
+
+
+def _run_options(checkpoint, every, resume) -> RunOptions:
+    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+        raise ConfigError(f"`checkpoint_every` (--every) must be an integer >= 1; got {every!r}.")
+    if checkpoint is not None:
+        checkpoint = os.fspath(checkpoint)
+        try:
+            os.makedirs(checkpoint, exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(
+                f"Cannot create the checkpoint folder {checkpoint!r}: {exc.strerror}. Choose another folder."
+            ) from None
+        if not os.access(checkpoint, os.W_OK):
+            raise ConfigError(f"The checkpoint folder {checkpoint!r} is not writable. Choose another folder.")
+    return RunOptions(checkpoint, int(every), None if resume is None else os.fspath(resume))
+
+
+def _first_controls(u_init, dims, run_options: RunOptions):
+    """The controls of the first nominal on the device (unused when resuming)."""
+    return None if run_options.resume is not None else _initial_controls(u_init, dims)
+
+
+def _initial_controls(u_init, dims) -> jnp.ndarray:
+    if u_init is None:
+        return on_device(np.zeros((dims.horizon, dims.nu)))
+    u = np.asarray(u_init, dtype=float)
+    if u.shape != (dims.horizon, dims.nu):
+        raise ConfigError(f"`u_init` must have shape [horizon, nu] = [{dims.horizon}, {dims.nu}]; got {u.shape}.")
+    if not np.all(np.isfinite(u)):
+        raise ConfigError("`u_init` holds non-finite numbers; use finite initial controls.")
+    return on_device(u)

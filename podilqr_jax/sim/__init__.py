@@ -1,0 +1,3 @@
+"""Simulation and compilation: the one rollout engine (``rollout.run``), batched and
+sharded through MJX; Monte Carlo episodes; MuJoCo's RK4; traced stages on disk, XLA
+options and the compilation cache."""

@@ -1,0 +1,120 @@
+"""Monte Carlo episodes: a policy run closed loop on the noisy system, as one MJX batch.
+
+One episode of a :class:`~podilqr_jax.control.policy.FeedbackPolicy` from the start
+state x_0 = x0 + dx_0:
+
+  m_t     = z_t + v_t                        measured, z_t = C x_t (+ D s(x_t)),
+                                             or x_t + v_t for a full-state policy
+  u_t     = u_bar_t + K_t xi_t               commanded (xi from the m's)
+  x_{t+1} = f(x_t, u_t + a_t) + w_t          a_t actuator noise, w_t process noise
+
+Its cost is the task's cost of the *true* observations z_t and the
+commanded controls, and its final error is max_i |z_T - z*|_i. The noise
+levels (:class:`EpisodeNoise`) are traced, so a sweep over them compiles once.
+
+Episodes run on the package's one rollout engine (``rollout.run``) with the
+policy's :class:`~podilqr_jax.control.policy.Controller` as the controller and one
+``noise.Disturbance`` per episode, drawn by ``noise.sample``.
+
+``run_segment`` runs the first ``steps`` steps of one controller per episode
+from given states: the building block of receding-horizon replanning.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ..control.policy import FeedbackPolicy
+from ..ilqr.cost import batch_costs
+from ..task.env import EnvData, EnvDims
+from ..task.noise import Disturbance, NoiseLevels, sample
+from .rollout import run_batch
+from .xla_options import jit
+
+
+class EpisodeNoise(NamedTuple):
+    """Standard deviations of an episode's noise and the actuator limits (traced)."""
+
+    x0: jnp.ndarray  # [nx] start-state deviation
+    w: jnp.ndarray  # [nx] process noise on qpos, qvel after each step
+    v: jnp.ndarray  # [nm] measurement noise on what the policy measures
+    a: jnp.ndarray  # [nu] actuator noise added to the commanded control
+    u_low: jnp.ndarray  # [nu] actuator limits: the command is clipped to [u_low, u_high]
+    u_high: jnp.ndarray  # [nu]
+
+    @property
+    def noise(self) -> NoiseLevels:
+        """The standard deviations alone, for ``noise.sample``."""
+        return NoiseLevels(self.x0, self.w, self.v, self.a)
+
+    @property
+    def limits(self) -> tuple[jnp.ndarray, jnp.ndarray]:
+        return self.u_low, self.u_high
+
+
+class Episodes(NamedTuple):
+    """What a batch of episodes returns."""
+
+    cost: jnp.ndarray  # [E] task cost (true observations, commanded controls); inf if not finite
+    final_error: jnp.ndarray  # [E] max_i |C x_T - z*|_i
+    z: jnp.ndarray  # [E, S+1, nz] true observations C x
+    u: jnp.ndarray  # [E, S, nu] commanded controls
+    x: jnp.ndarray  # [E, S+1, nx] true states
+
+
+def _summarise(data: EnvData, z, u, x) -> Episodes:
+    cost, _ = batch_costs(z, u, data)
+    error = jnp.max(jnp.abs(z[:, -1] - data.z_target), axis=-1)
+    return Episodes(cost, jnp.where(jnp.isfinite(error), error, jnp.inf), z, u, x)
+
+
+@jit(static_argnames=("dims", "episodes"))
+def run_episodes(
+    dims: EnvDims, data: EnvData, policy: FeedbackPolicy, key: jax.Array, levels: EpisodeNoise, episodes: int
+) -> Episodes:
+    """``episodes`` noisy episodes of ``policy`` over its whole horizon, one MJX batch."""
+    noise = sample(key, levels.noise, episodes, policy.horizon)
+    z, u, x = run_batch(
+        dims,
+        data,
+        policy.controller,
+        noise,
+        data.x0,
+        levels.limits,
+        batch=episodes,
+        in_axes=(None, 0, None),
+        steps=policy.horizon,
+        measures_state=policy.measures == "state",
+        record_state=True,
+    )
+    return _summarise(data, z, u, x)
+
+
+@jit(static_argnames=("dims",))
+def run_segment(dims: EnvDims, data: EnvData, policy: FeedbackPolicy, limits, x_start, noise: Disturbance):
+    """One segment per episode: ``policy`` holds one controller per episode
+    (leading axis E on every array), run from x_start [E, nx] for
+    ``noise.w.shape[1]`` steps under ``noise`` (no ``dx0``: x_start is where
+    the episode is). Returns (z, u, x) of the segment, true observations and states."""
+    episodes, steps = noise.w.shape[:2]
+    return tuple(
+        run_batch(
+            dims,
+            data,
+            policy.controller,
+            noise,
+            x_start,
+            limits,
+            batch=episodes,
+            in_axes=(0, 0, 0),
+            steps=steps,
+            measures_state=policy.measures == "state",
+            record_state=True,
+        )
+    )
+
+
+summarise = jax.jit(_summarise)
