@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 from typing import Any, Callable, Optional
 
@@ -43,12 +42,12 @@ from ..control.policy import FeedbackPolicy
 from ..control.replan import replan_episodes
 from ..errors import ConfigError
 from ..ilqr.config import SolverConfig, check_int, check_nonnegative
-from ..ilqr.result import Result, write_json_atomic
+from ..ilqr.result import Result
 from ..ilqr.solver import solve_model_based
 from ..sim.episodes import EpisodeNoise, Episodes, run_episodes
 from ..task.env import Env
 from ..task.noise import NoiseModel
-from .machine import describe
+from .report import header, write
 
 CONTROLLERS = ("open_loop", "closed_loop", "closed_loop_estimator", "replan", "model_based")
 
@@ -266,8 +265,7 @@ def evaluate(
         "task": env.name,
         "result_task": result.task,
         "variant": result.variant,
-        "settings": settings.as_dict(),
-        "machine": describe(),
+        **header(settings),
         "model_based_cost": reference.final_cost,
         "nominal_cost": result.final_true_cost,
         "u_max": u_max.tolist(),
@@ -340,10 +338,7 @@ def run_evaluation(
     result: Result, env: Env, out: str, settings: EvaluateSettings, *, train_env: Optional[Env] = None, progress=None
 ) -> dict[str, Any]:
     """:func:`evaluate`, then write ``out``/evaluate.json, evaluate.png and table.md."""
-    os.makedirs(out, exist_ok=True)
     report = evaluate(env, result, settings, train_env=train_env, progress=progress)
-    write_json_atomic(os.path.join(out, "evaluate.json"), report)
-    plot_evaluation(report, os.path.join(out, "evaluate.png"))
-    with open(os.path.join(out, "table.md"), "w") as f:
-        f.write(format_table(report) + "\n")
+    figures = {"evaluate.png": lambda path: plot_evaluation(report, path)}
+    write(out, "evaluate", report, table=format_table(report), figures=figures)
     return report

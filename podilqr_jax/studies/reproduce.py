@@ -32,12 +32,11 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from ..ilqr.config import PAPER_SETTINGS
-from ..ilqr.result import write_json_atomic
 from ..ilqr.solver import default_config, solve, solve_model_based
 from ..task.noise import NoiseModel
 from ..task.tasks import PAPER_S0, make_task
 from ..viz.plots import agg_pyplot
-from .machine import describe
+from .report import header, write
 
 PANELS = (
     ("full", ("nominal", "plain", "feedback")),
@@ -149,19 +148,11 @@ def run_study(
                             f"{name:17s} {study:11s} sigma={cfg.sigma:<7.3g} seed={seed} {variant:9s} "
                             f"true/optimum={r.final_true_cost / optimum:.5f} ({r.wall_s:.1f} s)"
                         )
-    summary = {
-        "settings": dataclasses.asdict(settings),
-        "machine": describe(),
-        "wall_s": time.perf_counter() - t0,
-        "rows": rows,
-    }
-    write_json_atomic(os.path.join(out, "summary.json"), summary)
-    plot_fig2(rows, os.path.join(out, "fig2_true_cost.png"))
+    summary = {**header(settings), "wall_s": time.perf_counter() - t0, "rows": rows}
+    figures = {"fig2_true_cost.png": lambda path: plot_fig2(rows, path)}
     if any(r["study"] == "sigma_sweep" for r in rows):
-        plot_sigma_sweep(rows, os.path.join(out, "sigma_sweep.png"))
-    table = format_table(rows)
-    with open(os.path.join(out, "table.md"), "w") as f:
-        f.write(table + "\n")
+        figures["sigma_sweep.png"] = lambda path: plot_sigma_sweep(rows, path)
+    write(out, "summary", summary, table=format_table(rows), figures=figures)
     return rows
 
 

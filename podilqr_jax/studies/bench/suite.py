@@ -59,8 +59,7 @@ import jax
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.ilqr.result import write_json_atomic
-from podilqr_jax.studies.machine import describe
+from podilqr_jax.studies.report import header, write
 
 NON_ROLLOUT_PHASES = ("fit", "backward", "host")
 
@@ -125,11 +124,6 @@ class BenchSettings:
             ls_memory_n_forward=20,
             ls_memory_chunks=(None, 44),
         )
-
-
-def machine() -> dict[str, Any]:
-    """What the numbers were measured on (``podilqr_jax.studies.machine.describe``)."""
-    return describe()
 
 
 def peak_host_mb() -> float:
@@ -310,7 +304,7 @@ def run(settings: BenchSettings, out: str, progress=print, sections=SECTIONS) ->
     if set(sections) != set(SECTIONS) and os.path.exists(path):
         with open(path) as f:
             report = json.load(f)
-    report.update({"machine": machine(), "settings": dataclasses.asdict(settings)})
+    report.update(header(settings))
     progress(f"machine: {report['machine']['cpu']} x{report['machine']['cpu_count']}, {report['machine']['backend']}")
     if "grid" in sections:
         report["grids"] = run_grid(settings, progress)
@@ -326,9 +320,9 @@ def run(settings: BenchSettings, out: str, progress=print, sections=SECTIONS) ->
         report["cache"] = run_cache(settings, progress)
     if "ls_memory" in sections:
         report["ls_memory"] = run_ls_memory(settings, progress)
-    write_json_atomic(path, report)
+    write(out, "bench", report)
     if "tasks" in report:
-        plot(report, out)
+        plot(report, out)  # three figures from one report
     return report
 
 
