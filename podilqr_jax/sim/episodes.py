@@ -71,25 +71,32 @@ def _summarise(data: EnvData, z, u, x) -> Episodes:
     return Episodes(cost, jnp.where(jnp.isfinite(error), error, jnp.inf), z, u, x)
 
 
+def _policy_batch(dims: EnvDims, data: EnvData, policy: FeedbackPolicy, noise, x_start, limits, in_axes, steps):
+    """The engine's batch of ``policy``'s controller (true z, commanded u, true x)."""
+    batch = noise.w.shape[0]
+    measures_state = policy.measures == "state"
+    return run_batch(
+        dims,
+        data,
+        policy.controller,
+        noise,
+        x_start,
+        limits,
+        batch=batch,
+        in_axes=in_axes,
+        steps=steps,
+        measures_state=measures_state,
+        record_state=True,
+    )
+
+
 @jit(static_argnames=("dims", "episodes"))
 def run_episodes(
     dims: EnvDims, data: EnvData, policy: FeedbackPolicy, key: jax.Array, levels: EpisodeNoise, episodes: int
 ) -> Episodes:
     """``episodes`` noisy episodes of ``policy`` over its whole horizon, one MJX batch."""
     noise = sample(key, levels.noise, episodes, policy.horizon)
-    z, u, x = run_batch(
-        dims,
-        data,
-        policy.controller,
-        noise,
-        data.x0,
-        levels.limits,
-        batch=episodes,
-        in_axes=(None, 0, None),
-        steps=policy.horizon,
-        measures_state=policy.measures == "state",
-        record_state=True,
-    )
+    z, u, x = _policy_batch(dims, data, policy, noise, data.x0, levels.limits, (None, 0, None), policy.horizon)
     return _summarise(data, z, u, x)
 
 
@@ -99,22 +106,7 @@ def run_segment(dims: EnvDims, data: EnvData, policy: FeedbackPolicy, limits, x_
     (leading axis E on every array), run from x_start [E, nx] for
     ``noise.w.shape[1]`` steps under ``noise`` (no ``dx0``: x_start is where
     the episode is). Returns (z, u, x) of the segment, true observations and states."""
-    episodes, steps = noise.w.shape[:2]
-    return tuple(
-        run_batch(
-            dims,
-            data,
-            policy.controller,
-            noise,
-            x_start,
-            limits,
-            batch=episodes,
-            in_axes=(0, 0, 0),
-            steps=steps,
-            measures_state=policy.measures == "state",
-            record_state=True,
-        )
-    )
+    return tuple(_policy_batch(dims, data, policy, noise, x_start, limits, (0, 0, 0), noise.w.shape[1]))
 
 
 summarise = jax.jit(_summarise)

@@ -8,7 +8,7 @@ receding-horizon segments. It takes a *controller* (``start``, ``command``,
 
 - :class:`InfoStateFeedback`, the training rollouts' controller,
 
-    u_t = clamp(u_bar_t + offset_t + K_t (Z_t - Z_bar_t) + du_t)
+    u_t = clip(u_bar_t + offset_t + K_t (Z_t - Z_bar_t) + du_t)
 
   clamped to the model's ctrlrange as MuJoCo clamps ``ctrl``; the recorded u
   is the applied, clamped control, so the fit sees what acted. Z_t is the
@@ -126,12 +126,6 @@ def observations_of(dims: EnvDims, data: EnvData, x: jnp.ndarray) -> jnp.ndarray
     """The noise-free observations of states x [N, nx] (sensors recomputed)."""
     d0 = make_data(data.model)
     return jax.vmap(lambda x_i: observe(dims, data, with_state(dims, d0, x_i), x_i))(x)
-
-
-def clamp(data: EnvData, u: jnp.ndarray) -> jnp.ndarray:
-    """``u`` clamped to the model's ctrlrange, as MuJoCo clamps ``ctrl`` (an
-    identity where the actuator is not limited: the bounds are -inf, inf)."""
-    return jnp.clip(u, data.u_low, data.u_high)
 
 
 def state_of(d) -> jnp.ndarray:
