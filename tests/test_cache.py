@@ -123,3 +123,16 @@ def test_an_unwritable_folder_warns_and_runs_without_a_cache(tmp_path):
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["info"]["source"] == "unwritable" and got["dir"] is None
     assert "PODILQR_CACHE_DIR" in out.stderr and "PODILQR_CACHE=0" in out.stderr
+
+
+def test_a_stage_key_hashes_the_source_of_every_subpackage():
+    """A traced stage kept on disk is keyed on the package's source: an edit of
+    the line search or the fit (outside sim/, where the stages module lives)
+    must start afresh, or a warm run would execute the program of old code."""
+    import podilqr_jax
+    from podilqr_jax.sim import stages
+
+    files = stages.source_files()
+    assert os.path.samefile(stages.PACKAGE_ROOT, os.path.dirname(podilqr_jax.__file__))
+    for rel in ("__init__.py", "ilqr/line_search.py", "identify/sysid.py", "task/env.py", "sim/rollout.py"):
+        assert rel.replace("/", os.sep) in files, rel

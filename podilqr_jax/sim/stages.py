@@ -58,19 +58,29 @@ def folder() -> Optional[str]:
     return os.path.join(info["directory"], FOLDER_NAME)
 
 
+PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # podilqr_jax/, above sim/
+
+
+def source_files() -> list[str]:
+    """Every Python file of the package (all subpackages), relative to its root, in a fixed order:
+    what a stage's key hashes, so that an edit anywhere in the package starts afresh."""
+    files = []
+    for dirpath, dirnames, filenames in os.walk(PACKAGE_ROOT):
+        dirnames.sort()
+        files += [
+            os.path.relpath(os.path.join(dirpath, n), PACKAGE_ROOT) for n in sorted(filenames) if n.endswith(".py")
+        ]
+    return files
+
+
 @functools.lru_cache(maxsize=1)
 def _versions() -> str:
     """The package's source and the versions it runs on, as one digest."""
     h = hashlib.sha256()
-    root = os.path.dirname(os.path.abspath(__file__))
-    for dirpath, dirnames, filenames in os.walk(root):
-        dirnames.sort()
-        for name in sorted(filenames):
-            if name.endswith(".py"):
-                path = os.path.join(dirpath, name)
-                h.update(os.path.relpath(path, root).encode())
-                with open(path, "rb") as f:
-                    h.update(f.read())
+    for rel in source_files():
+        h.update(rel.encode())
+        with open(os.path.join(PACKAGE_ROOT, rel), "rb") as f:
+            h.update(f.read())
     for dist in ("jax", "jaxlib", "mujoco", "mujoco-mjx"):
         try:
             h.update(f"{dist}={importlib.metadata.version(dist)};".encode())
