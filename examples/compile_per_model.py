@@ -26,7 +26,10 @@ import json, sys
 import podilqr_jax
 print("source", podilqr_jax.__file__, file=sys.stderr)
 import podilqr_jax as pj
-from podilqr_jax.task.taskfile import load_task
+try:
+    from podilqr_jax.task.taskfile import load_task
+except ImportError:  # a checkout from before the subpackages (--source of an older commit)
+    from podilqr_jax.taskfile import load_task
 task, which = sys.argv[1], sys.argv[2]
 env = load_task(task) if task.endswith(".toml") else pj.make_task(task)
 solve = pj.solve if which == "pod" else pj.solve_model_based

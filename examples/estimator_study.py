@@ -2,6 +2,7 @@
 
     python examples/estimator_study.py --out docs/figures/estimators     # ~30 min on 2 CPU cores
     python examples/estimator_study.py --quick --out runs/estimators      # a few minutes
+    python examples/estimator_study.py --tiny --out runs/estimators       # a smoke run
 
 Two parts, on the partially observed pendulum and cart-pole under the paper's
 noise (s0 = 0.01, process and measurement noise 1e-3):
@@ -21,14 +22,18 @@ noise (s0 = 0.01, process and measurement noise 1e-3):
    in the JSON too).
 
 Writes summary.json, coefficient_error.png, true_cost_vs_rollouts.png and
-table.md into --out.
+table.md into --out, the way every study of the package reports
+(podilqr_jax/studies: settings with a quick and a tiny size, the JSON opening
+with the settings and the machine).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
+from typing import Optional
 
 import jax
 import jax.numpy as jnp
@@ -37,8 +42,9 @@ import numpy as np
 import podilqr_jax as pj
 from podilqr_jax.identify.estimators import fit_information_model_iv
 from podilqr_jax.identify.info_state import info_dim
-from podilqr_jax.ilqr.result import write_json_atomic
 from podilqr_jax.sim.rollout import injected_perturbations, open_loop_policy, perturbation_rollouts, rollout_batch
+from podilqr_jax.studies.report import header, write
+from podilqr_jax.studies.settings import Sized, add_size_flags, size_of
 
 TASKS = ("pendulum-partial", "cartpole-partial")
 # (label, solver settings); n_s, n_avg and the estimator set the rollouts per iteration.
@@ -171,12 +177,38 @@ def solves(task: str, seeds: int, sigmas, configs, max_iterations=None) -> list[
     return rows
 
 
-def plot(coef_rows, solve_rows, out):
+@dataclasses.dataclass(frozen=True)
+class EstimatorStudySettings(Sized):
+    """What the study runs: seeds per point, the sysid batch sizes of part 1, the
+    largest n_s of part 2's configurations (None: all), whether part 2 runs both
+    sigmas of each task (else the larger), and its iteration cap (None: the task's)."""
+
+    seeds: int = 3
+    n_values: tuple[int, ...] = (40, 160, 640, 2560)
+    max_n_s: Optional[int] = None
+    both_sigmas: bool = True
+    max_iterations: Optional[int] = None
+
+    @classmethod
+    def quick(cls) -> "EstimatorStudySettings":
+        return cls(seeds=1, n_values=(40, 160, 640), max_n_s=200, both_sigmas=False, max_iterations=50)
+
+    @classmethod
+    def tiny(cls) -> "EstimatorStudySettings":
+        return cls(seeds=1, n_values=(40,), max_n_s=40, both_sigmas=False, max_iterations=2)
+
+
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def plot_coefficients(coef_rows, path):
+    plt = _pyplot()
     tasks = [t for t in TASKS if any(r["task"] == t for r in coef_rows)]
     fig, axes = plt.subplots(1, len(tasks), figsize=(6 * len(tasks), 4.2), squeeze=False)
     for ax, task in zip(axes[0], tasks, strict=True):
@@ -197,9 +229,12 @@ def plot(coef_rows, solve_rows, out):
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(os.path.join(out, "coefficient_error.png"), dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
 
+
+def plot_solves(solve_rows, path):
+    plt = _pyplot()
     keys = sorted({(r["task"], r["sigma"]) for r in solve_rows}, key=lambda k: (TASKS.index(k[0]), k[1]))
     cols = min(2, len(keys))
     rows_n = -(-len(keys) // cols)
@@ -224,7 +259,7 @@ def plot(coef_rows, solve_rows, out):
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(os.path.join(out, "true_cost_vs_rollouts.png"), dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
 
 
@@ -257,17 +292,16 @@ def table(solve_rows) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="runs/estimators")
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--seeds", type=int, default=3)
+    add_size_flags(parser, quick="1 seed, n_s <= 200, 50 iterations: a few minutes", tiny="a smoke run")
+    parser.add_argument("--seeds", type=int, default=None, help="seeds per point (default 3; quick and tiny 1)")
     parser.add_argument(
         "--labels", default=None, help="comma-separated labels to (re)run, merged into an existing --out/summary.json"
     )
     args = parser.parse_args()
+    settings = EstimatorStudySettings.sized(size_of(args)).changed(seeds=args.seeds)
     os.makedirs(args.out, exist_ok=True)
     t0 = time.perf_counter()
-    seeds = 1 if args.quick else args.seeds
-    n_values = (40, 160, 640) if args.quick else (40, 160, 640, 2560)
-    configs = [c for c in CONFIGS if c[1]["n_s"] <= 200] if args.quick else CONFIGS
+    configs = [c for c in CONFIGS if settings.max_n_s is None or c[1]["n_s"] <= settings.max_n_s]
     solve_rows = []
     if args.labels:
         import json
@@ -279,18 +313,22 @@ def main() -> None:
         solve_rows = [r for r in old["solves"] if r["label"] not in labels]
         configs = [c for c in configs if c[0] in labels]
     else:
-        coef_rows = [row for task in TASKS for row in coefficient_error(task, n_values, seeds)]
+        coef_rows = [row for task in TASKS for row in coefficient_error(task, settings.n_values, settings.seeds)]
     for task in TASKS:
-        sigmas = SIGMAS[task][-1:] if args.quick else SIGMAS[task]
-        solve_rows += solves(task, seeds, sigmas, configs, max_iterations=50 if args.quick else None)
-    write_json_atomic(
-        os.path.join(args.out, "summary.json"),
-        {"coefficient_error": coef_rows, "solves": solve_rows, "wall_s": time.perf_counter() - t0},
-    )
-    plot(coef_rows, solve_rows, args.out)
+        sigmas = SIGMAS[task] if settings.both_sigmas else SIGMAS[task][-1:]
+        solve_rows += solves(task, settings.seeds, sigmas, configs, max_iterations=settings.max_iterations)
+    report = {
+        **header(settings),
+        "coefficient_error": coef_rows,
+        "solves": solve_rows,
+        "wall_s": time.perf_counter() - t0,
+    }
     text = table(solve_rows)
-    with open(os.path.join(args.out, "table.md"), "w") as f:
-        f.write(text + "\n")
+    figures = {
+        "coefficient_error.png": lambda path: plot_coefficients(coef_rows, path),
+        "true_cost_vs_rollouts.png": lambda path: plot_solves(solve_rows, path),
+    }
+    write(args.out, "summary", report, table=text, figures=figures)
     print(text)
     print(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s")
 

@@ -6,7 +6,7 @@
                      [--checkpoint DIR [--every N]] [--resume DIR]
   podilqr reproduce [--quick | --tiny] [--seeds N] [--systems pendulum,cartpole]
                     [--no-sweep] [--out DIR]
-  podilqr evaluate RESULT [--noise 0,0.1,0.2,0.3,0.5] [--quick] [--task TASK]
+  podilqr evaluate RESULT [--noise 0,0.1,0.2,0.3,0.5] [--quick | --tiny] [--task TASK]
                     [--episodes N] [--system-noise SPEC] [--no-replan]
                     [--no-estimator] [--replan-every N] [--u-limit X]
                     [--model-error X] [--seed S] [--out DIR]
@@ -26,12 +26,13 @@ after the last completed iteration and exits with status 130.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import sys
 import textwrap
 from typing import Any, Optional, Sequence
+
+from .studies.settings import add_size_flags, check_writable, parse_names, size_of
 
 EXIT_INPUT_ERROR = 2
 
@@ -94,9 +95,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no live progress")
     p.set_defaults(func=_cmd_solve)
     r = sub.add_parser("reproduce", help="reproduce the paper's noise study (Fig. 2) and a sigma sweep")
-    size = r.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="2 seeds, shorter runs, 3-point sweep (minutes on a CPU)")
-    size.add_argument("--tiny", action="store_true", help="1 seed, 2 iterations, horizon 8: a smoke run")
+    add_size_flags(
+        r,
+        quick="2 seeds, shorter runs, 3-point sweep (minutes on a CPU)",
+        tiny="1 seed, 2 iterations, horizon 8: a smoke run",
+    )
     r.add_argument("--seeds", type=int, default=None, help="seeds per variant (default 5, quick 2)")
     r.add_argument("--systems", default="pendulum,cartpole", help="comma-separated: pendulum, cartpole")
     r.add_argument("--no-sweep", action="store_true", help="skip the sigma sweep")
@@ -111,7 +114,11 @@ def _parser() -> argparse.ArgumentParser:
         help="comma-separated noise levels: actuator noise std as a fraction of the largest nominal control "
         "(measurement noise scales with it); default 0,0.1,0.2,0.3,0.5 (quick: 0,0.1,0.3)",
     )
-    e.add_argument("--quick", action="store_true", help="3 levels, 64 episodes, 4 replanning episodes")
+    add_size_flags(
+        e,
+        quick="3 levels, 64 episodes, 4 replanning episodes (minutes on a CPU)",
+        tiny="2 levels, 8 episodes, 1 replanning episode of 1 iteration: a smoke run",
+    )
     e.add_argument("--task", default=None, help="the task the result was solved on (default: its recorded name)")
     e.add_argument("--episodes", type=int, default=None, help="episodes per controller and level (default 256)")
     e.add_argument("--replan-episodes", type=int, default=None, help="episodes of the replanning controller")
@@ -209,29 +216,6 @@ def _parse_sets(items: Sequence[str]) -> dict[str, Any]:
     return out
 
 
-def _check_writable(path: str) -> None:
-    from .errors import ConfigError
-
-    directory = os.path.dirname(os.path.abspath(path)) or "."
-    try:
-        os.makedirs(directory, exist_ok=True)
-    except (FileExistsError, NotADirectoryError):
-        raise ConfigError(
-            f"Cannot create the output folder {directory!r}: a file of that name (or of a parent folder's) "
-            "is in the way. Choose another --out."
-        ) from None
-    except OSError as exc:
-        raise ConfigError(
-            f"Cannot create the output folder {directory!r}: {exc.strerror}. Choose another --out."
-        ) from None
-    if not os.access(directory, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
-        raise ConfigError(f"The output path {path!r} is not writable. Choose another --out.")
-    if os.path.isdir(path):
-        raise ConfigError(
-            f"--out {path!r} is a folder; give a file name such as {os.path.join(path, 'result.json')!r}."
-        )
-
-
 def load_env(task: str, noise: Optional[str] = None):
     """A bundled task by name, or a task file by path; ``noise`` as --noise."""
     from .ilqr.config import fully_observed
@@ -286,24 +270,15 @@ def _cmd_tasks(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from .errors import ConfigError
-    from .studies.reproduce import SYSTEMS, StudySettings, format_table, run_study
+    from .studies.reproduce import SYSTEMS, ReproduceSettings, format_table, run_study
 
-    settings = StudySettings.quick() if args.quick else StudySettings.tiny() if args.tiny else StudySettings()
-    systems = tuple(s.strip() for s in args.systems.split(",") if s.strip())
-    unknown = [s for s in systems if s not in SYSTEMS]
-    if unknown or not systems:
-        raise ConfigError(f"--systems takes a comma-separated subset of {', '.join(SYSTEMS)}; got {args.systems!r}.")
-    if args.seeds is not None and args.seeds < 1:
-        raise ConfigError(f"--seeds must be >= 1; got {args.seeds}.")
-    changes: dict[str, Any] = {"systems": systems}
-    if args.seeds is not None:
-        changes["seeds"] = args.seeds
-    if args.no_sweep:
-        changes["sweep_factors"] = ()
-    settings = dataclasses.replace(settings, **changes)
-    probe = os.path.join(args.out, "summary.json")
-    _check_writable(probe)
+    settings = ReproduceSettings.sized(size_of(args)).changed(
+        systems=parse_names(args.systems, SYSTEMS, "--systems"),
+        seeds=args.seeds,
+        sweep_factors=() if args.no_sweep else None,
+    )
+    settings.validate()
+    check_writable(os.path.join(args.out, "summary.json"))
     print(f"reproducing the paper's study into {args.out} ({settings})", file=sys.stderr)
     rows = run_study(args.out, settings, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(format_table(rows))
@@ -333,28 +308,22 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .task.noise import NoiseModel
     from .task.tasks import PAPER_S0
 
-    settings = EvaluateSettings.quick() if args.quick else EvaluateSettings()
-    changes: dict[str, Any] = {}
-    if args.noise is not None:
-        changes["levels"] = _parse_levels(args.noise)
     names = ("episodes", "replan_episodes", "replan_every", "replan_iterations", "u_limit", "model_error", "seed")
-    for name in names + ("measurement_ratio",):
-        if getattr(args, name) is not None:
-            changes[name] = getattr(args, name)
-    if args.no_replan:
-        changes["replan"] = False
-    if args.no_estimator:
-        changes["estimator"] = False
+    settings = EvaluateSettings.sized(size_of(args)).changed(
+        levels=None if args.noise is None else _parse_levels(args.noise),
+        replan=False if args.no_replan else None,
+        estimator=False if args.no_estimator else None,
+        **{name: getattr(args, name) for name in names + ("measurement_ratio",)},
+    )
     result = load_result(args.result)
     env = load_env(args.task or result.task)
     if args.system_noise is not None:
         spec = _parse_noise(args.system_noise)
-        changes["system_noise"] = (
-            NoiseModel.paper(PAPER_S0, partial=not fully_observed(env)) if spec == "paper" else spec
+        settings = settings.changed(
+            system_noise=NoiseModel.paper(PAPER_S0, partial=not fully_observed(env)) if spec == "paper" else spec
         )
-    settings = dataclasses.replace(settings, **changes)
     train_env = env.replace(noise=result.noise) if result.noisy else env
-    _check_writable(os.path.join(args.out, "evaluate.json"))
+    check_writable(os.path.join(args.out, "evaluate.json"))
     print(f"evaluating {args.result} ({result.task}, {result.variant}) into {args.out}", file=sys.stderr)
     report = run_evaluation(
         result,
@@ -380,7 +349,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         raise ConfigError("Give either --compare OTHER or --vs-open-loop, not both: there are two panels.")
     other = load_result(args.compare) if args.compare else "open_loop" if args.vs_open_loop else None
     env = task_env(result, args.task)
-    _check_writable(args.out)
+    check_writable(args.out)
     info = animate(
         result,
         args.out,
@@ -417,7 +386,7 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
     import podilqr_jax as pj
 
     sets = _parse_sets(args.set)
-    _check_writable(args.out)
+    check_writable(args.out)
     env = load_env(args.task, args.noise)
     for note in env.model_notes:  # options MJX refuses that do not change the dynamics (env.mjx_model_of)
         print(f"note: {note}", file=sys.stderr)

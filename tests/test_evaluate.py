@@ -160,16 +160,17 @@ def test_cli_evaluate_runs_and_loads_the_saved_result(solved, tmp_path, capsys):
     loaded = pj.load_result(path)
     np.testing.assert_array_equal(loaded.info_states, solved[1].info_states)
     out = tmp_path / "ev"
-    argv = [
-        "evaluate", path, "--noise", "0,0.2", "--episodes", "8", "--replan-episodes", "1",
-        "--replan-iterations", "1", "--no-estimator", "--measurement-ratio", "0", "--out", str(out),
-    ]  # fmt: skip
+    argv = ["evaluate", path, "--tiny", "--no-estimator", "--measurement-ratio", "0", "--out", str(out)]
     assert main(argv) == 0
     assert "| noise level |" in capsys.readouterr().out
     report = json.loads((out / "evaluate.json").read_text())
     rows = report["rows"]
     assert {r["controller"] for r in rows} == {"open_loop", "closed_loop", "replan", "model_based"}
     assert report["settings"]["measurement_ratio"] == 0 and all(max(r["measurement_std"]) == 0 for r in rows)
+    tiny = EvaluateSettings.tiny()  # --tiny, with two fields changed by their options
+    expected = {**tiny.as_dict(), "measurement_ratio": 0, "estimator": False, "replan_every": 3}
+    assert report["settings"] == json.loads(json.dumps(expected))
+    assert {r["noise_level"] for r in rows} == set(tiny.levels)
 
 
 @pytest.mark.parametrize(

@@ -90,7 +90,7 @@ def test_solve_with_paper_noise_reports_true_cost_ratio(tmp_path, capsys):
         (["solve", "pendulum-full", "--noise", "loud"], "--noise expects"),
         (["solve", "pendulum-full", "--noise", "paper", "--set", "variant=avg"], "Unknown variant 'avg'"),
         (["reproduce", "--systems", "rocket"], "--systems takes"),
-        (["reproduce", "--seeds", "0"], "--seeds must be >= 1"),
+        (["reproduce", "--seeds", "0"], "`seeds` must be an integer >= 1"),
     ],
 )
 def test_noise_input_errors(tmp_path, capsys, argv, pattern):

@@ -124,4 +124,4 @@ def test_bench_cli_refuses_unknown_tasks(capsys):
     from podilqr_jax.cli import main
 
     assert main(["bench", "--tasks", "rocket-full"]) == 2
-    assert "--tasks takes bundled tasks" in capsys.readouterr().err
+    assert "--tasks takes a comma-separated subset" in capsys.readouterr().err

@@ -48,6 +48,7 @@ from ..sim.episodes import EpisodeNoise, Episodes, run_episodes
 from ..task.env import Env
 from ..task.noise import NoiseModel
 from .report import header, write
+from .settings import Sized
 
 CONTROLLERS = ("open_loop", "closed_loop", "closed_loop_estimator", "replan", "model_based")
 
@@ -55,8 +56,9 @@ Progress = Callable[[str], None]
 
 
 @dataclasses.dataclass(frozen=True)
-class EvaluateSettings:
-    """What ``evaluate`` runs (see the module docstring)."""
+class EvaluateSettings(Sized):
+    """What ``evaluate`` runs (see the module docstring; sizes and changes as every study's:
+    ``studies/settings.py``)."""
 
     levels: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.5)
     episodes: int = 256
@@ -79,6 +81,11 @@ class EvaluateSettings:
     def quick(cls) -> "EvaluateSettings":
         """Three levels, 64 episodes, 4 replanning episodes: a few minutes on a CPU."""
         return cls(levels=(0.0, 0.1, 0.3), episodes=64, replan_episodes=4)
+
+    @classmethod
+    def tiny(cls) -> "EvaluateSettings":
+        """Two levels, 8 episodes, one replanning episode of one iteration: a smoke run."""
+        return cls(levels=(0.0, 0.2), episodes=8, replan_episodes=1, replan_iterations=1)
 
     def validate(self, horizon: int) -> "EvaluateSettings":
         levels = tuple(self.levels)

@@ -31,12 +31,14 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ..ilqr.config import PAPER_SETTINGS
+from ..errors import ConfigError
+from ..ilqr.config import PAPER_SETTINGS, check_int
 from ..ilqr.solver import default_config, solve, solve_model_based
 from ..task.noise import NoiseModel
 from ..task.tasks import PAPER_S0, make_task
 from ..viz.plots import agg_pyplot
 from .report import header, write
+from .settings import Sized
 
 PANELS = (
     ("full", ("nominal", "plain", "feedback")),
@@ -62,8 +64,8 @@ COLORS = {"nominal": "k", "plain": "tab:red", "feedback": "tab:blue", "averaged"
 
 
 @dataclasses.dataclass(frozen=True)
-class StudySettings:
-    """What the study runs.
+class ReproduceSettings(Sized):
+    """What the study runs (sizes and changes as every study's: ``studies/settings.py``).
 
     Attributes:
       seeds: seeds per (system, observation, variant).
@@ -84,7 +86,7 @@ class StudySettings:
     s0: float = PAPER_S0
 
     @classmethod
-    def quick(cls) -> "StudySettings":
+    def quick(cls) -> "ReproduceSettings":
         """A few minutes on 2 CPU cores: 2 seeds, shorter runs, a 3-point sweep."""
         return cls(
             seeds=2,
@@ -94,7 +96,7 @@ class StudySettings:
         )
 
     @classmethod
-    def tiny(cls) -> "StudySettings":
+    def tiny(cls) -> "ReproduceSettings":
         """A smoke run of every panel and the sweep (seconds per system, numbers meaningless):
         1 seed, 2 iterations, horizon 8, a 2-point sweep."""
         return cls(
@@ -105,13 +107,23 @@ class StudySettings:
             horizon=8,
         )
 
+    def validate(self) -> "ReproduceSettings":
+        """Raise a ConfigError for settings the study cannot run; return them otherwise."""
+        unknown = [s for s in self.systems if s not in SYSTEMS]
+        if unknown or not self.systems:
+            raise ConfigError(f"`systems` is a non-empty subset of {', '.join(SYSTEMS)}; got {self.systems!r}.")
+        for name, minimum in (("seeds", 1), ("sweep_seeds", 1), ("horizon", 2)):
+            check_int(name, getattr(self, name), minimum)
+        return self
+
 
 def run_study(
     out: str | os.PathLike,
-    settings: StudySettings = StudySettings(),
+    settings: ReproduceSettings = ReproduceSettings(),
     progress: Optional[Callable[[str], None]] = None,
 ) -> list[dict]:
     """Run the study and write summary.json, the figures and table.md into ``out``."""
+    settings.validate()
     out = os.fspath(out)
     os.makedirs(out, exist_ok=True)
     say = progress or (lambda msg: None)

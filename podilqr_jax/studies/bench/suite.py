@@ -60,12 +60,15 @@ import numpy as np
 
 import podilqr_jax as pj
 from podilqr_jax.studies.report import header, write
+from podilqr_jax.studies.settings import Sized, add_size_flags, check_writable, parse_names, size_of
 
 NON_ROLLOUT_PHASES = ("fit", "backward", "host")
 
 
 @dataclasses.dataclass(frozen=True)
-class BenchSettings:
+class BenchSettings(Sized):
+    """What ``podilqr bench`` measures (sizes and changes as every study's: ``studies/settings.py``)."""
+
     tasks: tuple[str, ...] = ("pendulum-full", "cartpole-full")
     n_s: tuple[int, ...] = (16, 64, 256, 1024, 4096)
     n_avg: tuple[int, ...] = (1, 4, 16)
@@ -86,6 +89,7 @@ class BenchSettings:
 
     @classmethod
     def quick(cls) -> "BenchSettings":
+        """A small grid and small baselines: a few minutes on a CPU."""
         return cls(
             n_s=(16, 256),
             n_avg=(1, 4),
@@ -520,9 +524,9 @@ def format_summary(report: dict[str, Any]) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="podilqr bench", description=__doc__.splitlines()[0])
-    size = parser.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="a small grid: a few minutes on a CPU")
-    size.add_argument("--tiny", action="store_true", help="every section at the smallest size: a smoke test")
+    add_size_flags(
+        parser, quick="a small grid: a few minutes on a CPU", tiny="every section at the smallest size: a smoke test"
+    )
     parser.add_argument(
         "--tasks", default=None, help="comma-separated bundled tasks (default pendulum-full,cartpole-full)"
     )
@@ -542,17 +546,14 @@ def main(argv=None) -> int:
         task, n_s, n_avg, it = args.devices_child
         print(json.dumps(devices_child(task, int(n_s), int(n_avg), int(it))))
         return 0
-    settings = BenchSettings.quick() if args.quick else BenchSettings.tiny() if args.tiny else BenchSettings()
-    if args.tasks:
-        tasks = tuple(t.strip() for t in args.tasks.split(",") if t.strip())
-        unknown = [t for t in tasks if t not in pj.TASKS]
-        if unknown or not tasks:
-            print(f"error: --tasks takes bundled tasks ({', '.join(pj.TASKS)}); got {args.tasks!r}", file=sys.stderr)
-            return 2
-        settings = dataclasses.replace(settings, tasks=tasks)
-    sections = tuple(x.strip() for x in args.sections.split(",") if x.strip())
-    if not sections or set(sections) - set(SECTIONS):
-        print(f"error: --sections takes a subset of {','.join(SECTIONS)}; got {args.sections!r}", file=sys.stderr)
+    try:
+        settings = BenchSettings.sized(size_of(args)).changed(
+            tasks=None if args.tasks is None else parse_names(args.tasks, tuple(pj.TASKS), "--tasks")
+        )
+        sections = parse_names(args.sections, SECTIONS, "--sections")
+        check_writable(os.path.join(args.out, "bench.json"))
+    except pj.ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
     report = run(settings, args.out, progress=lambda m: print(m, file=sys.stderr, flush=True), sections=sections)
