@@ -523,7 +523,7 @@ def format_summary(report: dict[str, Any]) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="podilqr bench", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="podilqr bench", description=" ".join(__doc__.split("\n\n")[0].split()))
     add_size_flags(
         parser, quick="a small grid: a few minutes on a CPU", tiny="every section at the smallest size: a smoke test"
     )
