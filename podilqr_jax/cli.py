@@ -308,12 +308,13 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .task.noise import NoiseModel
     from .task.tasks import PAPER_S0
 
-    names = ("episodes", "replan_episodes", "replan_every", "replan_iterations", "u_limit", "model_error", "seed")
+    names = ("episodes", "replan_episodes", "replan_every", "replan_iterations")
+    names += ("u_limit", "model_error", "measurement_ratio", "seed")
     settings = EvaluateSettings.sized(size_of(args)).changed(
         levels=None if args.noise is None else _parse_levels(args.noise),
         replan=False if args.no_replan else None,
         estimator=False if args.no_estimator else None,
-        **{name: getattr(args, name) for name in names + ("measurement_ratio",)},
+        **{name: getattr(args, name) for name in names},
     )
     result = load_result(args.result)
     env = load_env(args.task or result.task)

@@ -9,23 +9,17 @@ table and the figures into one folder.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from typing import Any, Callable, Mapping, Optional
 
 from ..ilqr.result import write_json_atomic
 from .machine import describe
+from .settings import Sized
 
 
-def settings_dict(settings: Any) -> dict[str, Any]:
-    """A study's settings as plain JSON values (its own ``as_dict`` when it has one)."""
-    as_dict = getattr(settings, "as_dict", None)
-    return as_dict() if callable(as_dict) else dataclasses.asdict(settings)
-
-
-def header(settings: Any) -> dict[str, Any]:
-    """What opens every study's JSON: ``settings`` and ``machine``."""
-    return {"settings": settings_dict(settings), "machine": describe()}
+def header(settings: Sized) -> dict[str, Any]:
+    """What opens every study's JSON: ``settings`` (its ``as_dict``) and ``machine``."""
+    return {"settings": settings.as_dict(), "machine": describe()}
 
 
 def write(
