@@ -3,7 +3,10 @@
 For each task (bundled names or task files) runs a one-iteration solve of
 POD-iLQR and of the model-based reference, each in a fresh process with the
 persistent compilation cache off (``PODILQR_CACHE=0``), and prints a Markdown
-table of ``Result.compile_s`` (trace + lower + compile). ``--source DIR`` runs
+table of ``Result.compile_s`` (trace + lower + compile; a compile ahead,
+``sim/ahead.py``, counts with its wall time) and, in brackets, the solve's
+wall time (``Result.wall_s``: the compile and one iteration; the same
+measure for a checkout whose ``compile_s`` counts otherwise). ``--source DIR`` runs
 the package from another checkout (``PYTHONPATH=DIR``), which is how
 docs/performance.md puts the compile of an older commit beside this one in one
 run, model by model, interleaved, so both see the same machine load:
@@ -38,7 +41,8 @@ print(json.dumps({"compile_s": r.compile_s, "wall_s": r.wall_s, "status": str(r.
 """
 
 
-def compile_seconds(source: str, task: str, which: str, timeout: float) -> float | None:
+def compile_seconds(source: str, task: str, which: str, timeout: float) -> dict | None:
+    """{"compile_s", "wall_s", "status"} of a cold one-iteration solve in a fresh process, or None."""
     env = dict(os.environ, PODILQR_CACHE="0", PYTHONPATH=os.path.abspath(source))
     if task.endswith(".toml"):
         task = os.path.abspath(task)
@@ -57,7 +61,7 @@ def compile_seconds(source: str, task: str, which: str, timeout: float) -> float
     if out.returncode or not lines:
         sys.stderr.write(out.stderr[-2000:])
         return None
-    return json.loads(lines[-1])["compile_s"]
+    return json.loads(lines[-1])
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -77,7 +81,9 @@ def main(argv: list[str] | None = None) -> None:
             for s in sources:  # interleaved: each pair sees the same load
                 figures[f"{which}:{s}"] = compile_seconds(s, task, which, a.timeout)
         rows[task] = figures
-        cells = " | ".join("timeout" if v is None else f"{v:.1f}" for v in figures.values())
+        cells = " | ".join(
+            "timeout" if v is None else f"{v['compile_s']:.1f} ({v['wall_s']:.1f})" for v in figures.values()
+        )
         print(f"| {os.path.splitext(os.path.basename(task))[0]} | {cells} |", flush=True)
     if a.out:
         with open(a.out, "w") as f:

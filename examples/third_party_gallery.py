@@ -150,7 +150,10 @@ def probe() -> str:
 def compile_table(stems: list[str], out_dir: str) -> str:
     """Per model: integrator, constraint rows at the start, compile seconds of
     each solve and the stage times (a stage's first call compiles it, so its
-    time is that compile plus every iteration's run)."""
+    time is that compile plus every iteration's run). A solve whose stages
+    compiled ahead, side by side (``sim/ahead.py``; its ``compile`` phase)
+    has no split to show: "ahead" stands in its place (run the gallery with
+    ``PODILQR_COMPILE_AHEAD=0`` for the split)."""
     import mujoco
     from mujoco import mjx
 
@@ -172,10 +175,11 @@ def compile_table(stems: list[str], out_dir: str) -> str:
         integrator = mujoco.mjtIntegrator(m.opt.integrator).name[6:]
         mb = d.get("model_based", {})
         p, q = d["phase_s"], mb.get("phase_s", {})
+        pod_split = "ahead" if p.get("compile") else f"{p['rollouts']:.0f}, {p['line_search']:.0f}"
+        mb_split = "ahead" if q.get("compile") else f"{q.get('fit', 0):.0f}, {q.get('line_search', 0):.0f}"
         lines.append(
             f"| {d['task']} | {integrator} | {rows} ({m.opt.iterations}, {m.opt.ls_iterations}) "
-            f"| {d['compile_s']:.0f} ({p['rollouts']:.0f}, {p['line_search']:.0f}) "
-            f"| {_g(mb.get('compile_s'), '.0f')} ({q.get('fit', 0):.0f}, {q.get('line_search', 0):.0f}) |"
+            f"| {d['compile_s']:.0f} ({pod_split}) | {_g(mb.get('compile_s'), '.0f')} ({mb_split}) |"
         )
     return "\n".join(lines)
 

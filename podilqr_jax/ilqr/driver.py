@@ -15,8 +15,9 @@ mutable part is the :class:`~podilqr_jax.ilqr.state.SolverState`. Then
 and :func:`run` loops ``step`` with the progress callback, checkpoints and
 Ctrl-C (``interrupts``). The driver only moves scalars to the host (cost,
 acceptance, step size, mu), so each iteration can be reported live; every
-array stays on the device. All jitted stages compile in the first iteration
-and never again (``compile_watch``).
+array stays on the device. All jitted stages compile before or in the first
+iteration and never again (``compile_watch``): before it, side by side in
+threads, where :func:`compile_ahead` can (``sim.ahead``).
 
 Regularisation schedule: after an accepted step mu <- max(mu / f, mu_min);
 after the n-th consecutive rejected step mu <- max(mu f^n, mu_min) and the
@@ -37,8 +38,9 @@ import jax
 import numpy as np
 
 from ..identify.identification import Experiment
+from ..sim import ahead
 from ..sim.compile_watch import CompileWatch
-from ..sim.rollout import Policy, observations_of
+from ..sim.rollout import Policy, observations_of, replicated
 from ..task.env import Env, EnvData, EnvDims
 from . import stopping
 from .backward import QuadraticCost, Regularisation, backward_pass
@@ -53,7 +55,7 @@ from .true_cost import true_costs
 
 Callback = Callable[[IterationInfo], None]
 
-PHASES = ("rollouts", "fit", "backward", "line_search", "evaluation", "host")
+PHASES = ("compile", "rollouts", "fit", "backward", "line_search", "evaluation", "host")
 
 
 class RunOptions(NamedTuple):
@@ -109,12 +111,18 @@ class Outcome(NamedTuple):
 
 
 class Timing:
-    """Seconds per phase and compilations per iteration (not checkpointed)."""
+    """Seconds per phase and compilations per iteration (not checkpointed).
+
+    ``phase_s["compile"]`` is the wall time of the compile ahead
+    (:func:`compile_ahead`), ``ahead_events_s`` the trace, lower and compile
+    seconds it summed over its threads (more than its wall time where they
+    overlapped)."""
 
     def __init__(self):
         self.phase_s = dict.fromkeys(PHASES, 0.0)
         self.compiles: list[int] = []
         self.first_compiles = 0
+        self.ahead_events_s = 0.0
 
     def add(self, phase: str, t0: float) -> None:
         self.phase_s[phase] += time.perf_counter() - t0
@@ -150,11 +158,47 @@ def ground_truth(ctx: Context, st: SolverState, timing: Timing) -> tuple[float, 
     return out
 
 
+def compile_ahead(ctx: Context, st: SolverState, timing: Timing) -> int:
+    """Compile the stages of the first iteration side by side, before it runs
+    (``sim.ahead``): the identification, the backward pass, the line search
+    (as the first measurement calls it) and, under noise, the true cost, each
+    called as ``init`` and ``step`` will call it, on zeros of the shapes they
+    will see, inside a dry run. ``st`` is read, never changed. Returns the
+    compilations it made (0 where the dry run is off)."""
+    n_workers = ahead.workers()
+    if n_workers == 0:
+        return 0
+    dims, to_device = ctx.dims, ctx.to_device
+    t0 = time.perf_counter()
+    with CompileWatch() as watch:
+        with ahead.dry_run(n_workers, place=lambda a: jax.device_put(a, replicated())):
+            T = dims.horizon
+            zeros = [to_device(np.zeros(shape)) for shape in ((T, dims.nu), (T + 1, dims.nz), (T + 1, dims.nx))]
+            nominal = Nominal(*zeros, to_device(np.zeros((T + 1, ctx.nZ))), 0.0)
+            _, key = jax.random.split(st.key)
+            sigma = st.sigma * reidentify_scale(st.reidentified)
+            found = ctx.identify(key, nominal, st.gains, sigma, Experiment(bool(st.mirrored), bool(st.open_loop)))
+            backward_pass(found.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, to_device(st.mu), ctx.reg)
+            _, sub = jax.random.split(st.ls_key)
+            line_search(
+                ctx.dims, ctx.q, ctx.data, policy_of(nominal, st.gains), ctx.zero_k, ctx.alphas, to_device(np.inf),
+                ctx.no_change, ctx.no_change, ctx.accept_ratio, sub, ctx.n_fwd, ctx.noisy, ctx.ls_chunk,
+            )  # fmt: skip
+            if ctx.noisy:
+                true_costs(ctx.dims, ctx.q, ctx.data, policy_of(nominal, st.gains))
+    timing.add("compile", t0)
+    timing.ahead_events_s += watch.seconds
+    return watch.compiles
+
+
 def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverState:
     """The state before the first iteration: the first nominal measured (the
-    line search with k = 0, K = 0 rolls out ``u_init`` open loop), or a checkpoint."""
+    line search with k = 0, K = 0 rolls out ``u_init`` open loop), or a
+    checkpoint; the first iteration's stages compiled ahead (:func:`compile_ahead`)."""
     if resume is not None:
-        return load_checkpoint(resume, ctx.fingerprint, ctx.to_device)
+        st = load_checkpoint(resume, ctx.fingerprint, ctx.to_device)
+        timing.first_compiles = compile_ahead(ctx, st, timing)
+        return st
     cfg, dims = ctx.cfg, ctx.dims
     key = jax.random.PRNGKey(cfg.seed)
     st = SolverState(
@@ -166,6 +210,7 @@ def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverS
         sigma=float(cfg.sigma),
         mirrored=int(cfg.mirrored),
     )
+    compiled_ahead = compile_ahead(ctx, st, timing)
     with CompileWatch() as watch:
         first = Policy(u_init, ctx.to_device(np.zeros((dims.horizon, ctx.nZ))), st.gains)
         ls, _ = measure(ctx, st, timing, first, ctx.zero_k, np.inf, ctx.no_change, ctx.no_change)
@@ -177,7 +222,7 @@ def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverS
         [st.nominal.cost], [true_cost], [open_cost],
     )  # fmt: skip
     record.rollouts = ctx.ls_rollouts
-    timing.first_compiles = watch.compiles
+    timing.first_compiles = compiled_ahead + watch.compiles
     return st
 
 
@@ -419,6 +464,8 @@ def terminate(ctx: Context, st: SolverState, stop: Stop, timing: Timing, watch: 
             f"{record.mu_retries} times no step lowered the cost and the backward pass was redone with a larger mu"
         )
     nominal = st.nominal
+    # the compile ahead counts with its wall time, not the summed seconds of its overlapping threads
+    compile_s = watch.seconds - timing.ahead_events_s + timing.phase_s["compile"]
     k = np.asarray(st.back_k) if st.back_k is not None else np.zeros((dims.horizon, dims.nu))
     x_bar = np.asarray(nominal.x_bar)
     pod = ctx.data_based
@@ -438,8 +485,8 @@ def terminate(ctx: Context, st: SolverState, stop: Stop, timing: Timing, watch: 
         q=ctx.q,
         record=dataclasses.replace(record),
         wall_s=wall,
-        compile_s=watch.seconds,
-        run_s=max(0.0, wall - watch.seconds),
+        compile_s=compile_s,
+        run_s=max(0.0, wall - compile_s),
         compiles_per_iteration=timing.compiles,
         phase_s=timing.phase_s,
         config=dataclasses.asdict(cfg) | {"q": ctx.q},

@@ -81,10 +81,10 @@ class Result:
     q: int
     record: Record  # the counters and histories (iterations, rollouts, cost_history, ...)
     wall_s: float
-    compile_s: float
+    compile_s: float  # tracing, lowering and compiling (the compile ahead, sim/ahead.py, at its wall time)
     run_s: float
     compiles_per_iteration: list[int]
-    phase_s: dict[str, float]
+    phase_s: dict[str, float]  # seconds per phase (driver.PHASES); "compile" is the compile ahead
     config: dict[str, Any]
     control_dt: float
     observation_labels: tuple[str, ...] = ()

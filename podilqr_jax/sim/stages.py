@@ -21,6 +21,10 @@ jaxlib and MuJoCo versions, x64, the backend, the static arguments, the
 pytree structure of the traced ones (with their static fields: MJX's model
 options, joint types and sizes) and their shapes and dtypes.
 
+Inside the driver's dry run (``ahead``) a stage call is lowered along the
+same path, compiled in a thread and answered with zeros of its output's
+shapes, so the real call that follows finds its executable compiled.
+
 Where a stage cannot go this way it is the plain jitted function: the
 package's cache off (``PODILQR_CACHE=0``) or a cache the user configured
 for JAX, a call from inside another trace (``vmap``, ``jit``), more than one
@@ -43,7 +47,7 @@ from typing import Any, Callable, Optional, Sequence
 import jax
 import numpy as np
 
-from . import cache, xla_options
+from . import ahead, cache, xla_options
 
 FOLDER_NAME = "podilqr-stages"
 fallbacks: dict[str, str] = {}  # stage name -> why it runs as a plain jit (the last refusal)
@@ -112,26 +116,34 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
         name = f"{fun.__module__}.{fun.__qualname__}"
         runners: dict[Any, Callable] = {}
 
-        @functools.wraps(fun)
-        def call(*args, **kwargs):
+        def target(args, kwargs) -> tuple[Callable, tuple, dict]:
+            """What runs this call: (a callable, its positional and keyword arguments)."""
             where = folder()
             if where is None or jax.device_count() > 1:
-                return jitted(*args, **kwargs)
+                return jitted, args, kwargs
             bound = signature.bind(*args, **kwargs)
             bound.apply_defaults()
             static = tuple((k, bound.arguments[k]) for k in static_argnames)
             traced = {k: v for k, v in bound.arguments.items() if k not in static_argnames}
             leaves, treedef = jax.tree_util.tree_flatten(traced)
             if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
-                return jitted.plain(*args, **kwargs)  # inside another trace: its compiler options apply
+                return jitted.plain, args, kwargs  # inside another trace: its compiler options apply
             avals = tuple(jax.typeof(leaf) for leaf in leaves)
             memo = (static, treedef, avals)
             runner = runners.get(memo)
             if runner is None:
                 runner = runners[memo] = _runner(name, fun, jitted, where, static, treedef, avals)
             if runner is jitted:
-                return jitted.top()(*args, **kwargs)
-            return runner(*leaves)
+                return jitted.top(), args, kwargs
+            return runner, tuple(leaves), {}
+
+        @functools.wraps(fun)
+        def call(*args, **kwargs):
+            fn, a, kw = target(args, kwargs)
+            dry = ahead.current()
+            if dry is not None and fn is not jitted.plain:
+                return dry.submit(name, fn, a, kw)  # lowered now, compiled beside the rest (``ahead``)
+            return fn(*a, **kw)
 
         call.lower = jitted.lower  # the plain jit's (memory analysis, ``bench.line_search_memory``)
         return call

@@ -470,7 +470,7 @@ def plot(report: dict[str, Any], out: str) -> list[str]:
     plt.close(fig)
 
     fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 4.2), squeeze=False)
-    phases = ("rollouts", "line_search", "fit", "backward", "evaluation", "host")
+    phases = ("compile", "rollouts", "line_search", "fit", "backward", "evaluation", "host")
     for ax, (task, data) in zip(axes[0], tasks.items(), strict=True):
         cells = sorted(data["grid"], key=lambda c: (c["n_avg"], c["n_s"]))
         labels = [f"{c['n_s']}x{c['n_avg']}" for c in cells]

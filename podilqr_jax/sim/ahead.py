@@ -1,0 +1,109 @@
+"""Compile ahead: a solve's stages compiled side by side before its first iteration.
+
+A cold solve compiles its stages one after the other as the first iteration
+reaches them, and on a CPU XLA compiles each on one core: on 2 cores the
+second core idles through most of the compile (docs/performance.md). Before
+the first iteration the driver therefore runs the iteration *dry*
+(``driver.compile_ahead``): inside :func:`dry_run` every call of a stage
+(``stages.stage``) is traced and lowered at once, handed to a pool of
+threads to compile, and answered with zeros of its output's shapes, so the
+host code after it runs on and reaches the next stage. XLA compiles outside
+Python's lock, so the pool's compiles run side by side with each other and
+with the tracing of the stages still to come. The dry run returns when
+every compile has finished; the iteration that follows calls the same
+stages with arguments of the same shapes, placement and types, and JAX finds
+the executables compiled.
+
+Nothing the dry run computes is kept: the zeros only carry shapes to the
+next stage, and the driver's state is untouched. A stage the dry run did
+not reach, or reached with other arguments, compiles when it is called, as
+without it. The dry run is skipped where it cannot help or might not match:
+one core (``os.sched_getaffinity``), more than one device or process, or
+``PODILQR_COMPILE_AHEAD=0`` (read per solve, see :func:`workers`). Any error
+inside it abandons it (the solve then compiles as it goes; the reason is in
+``last_error``).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import os
+import threading
+from typing import Any, Callable, Iterator, Optional
+
+import jax
+import numpy as np
+
+ENV_SWITCH = "PODILQR_COMPILE_AHEAD"
+MAX_WORKERS = 4
+last_error: Optional[str] = None  # why the last dry run was abandoned (None: it was not)
+
+_local = threading.local()
+
+
+def workers() -> int:
+    """Threads to compile with, or 0 where the dry run is off (module docstring).
+
+    ``PODILQR_COMPILE_AHEAD``: unset, ``1`` or ``on``: the cores this process
+    may run on, at most ``MAX_WORKERS``, and off on one core; ``0`` or
+    ``off``: off; an integer N >= 2: N threads, however many cores."""
+    text = os.environ.get(ENV_SWITCH, "1").strip().lower()
+    if text in ("0", "off", "false", "no"):
+        return 0
+    if jax.process_count() > 1 or jax.device_count() > 1:
+        return 0
+    if text.isdigit() and int(text) >= 2:
+        return int(text)
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cores = os.cpu_count() or 1
+    return min(cores, MAX_WORKERS) if cores >= 2 else 0
+
+
+class DryRun:
+    """The stages lowered so far and their compiles in flight."""
+
+    def __init__(self, pool: concurrent.futures.ThreadPoolExecutor, place: Callable[[np.ndarray], Any]) -> None:
+        self.pool = pool
+        self.place = place
+        self.futures: list[concurrent.futures.Future] = []
+        self.names: list[str] = []
+
+    def submit(self, name: str, target: Callable, args: tuple, kwargs: dict):
+        """Lower ``target(*args, **kwargs)`` now, compile it in the pool, and
+        return zeros shaped like its output (placed as a stage's outputs are)."""
+        lowered = target.lower(*args, **kwargs)
+        self.futures.append(self.pool.submit(lowered.compile))
+        self.names.append(name)
+        return jax.tree_util.tree_map(lambda s: self.place(np.zeros(s.shape, s.dtype)), lowered.out_info)
+
+
+def current() -> Optional[DryRun]:
+    """The dry run this thread is inside, or None."""
+    return getattr(_local, "run", None)
+
+
+@contextlib.contextmanager
+def dry_run(n_workers: int, place: Callable[[np.ndarray], Any]) -> Iterator[DryRun]:
+    """Inside: every stage call is lowered, compiled in a pool of ``n_workers``
+    threads and answered with zeros (``place`` puts them where stage outputs
+    live). On leaving, waits for every compile; an error inside is swallowed
+    (``last_error``), the compiles already submitted still finish."""
+    global last_error
+    last_error = None
+    with concurrent.futures.ThreadPoolExecutor(max_workers=n_workers, thread_name_prefix="podilqr-compile") as pool:
+        run = DryRun(pool, place)
+        _local.run = run
+        try:
+            yield run
+        except Exception as exc:  # noqa: BLE001 - the solve compiles as it goes instead
+            last_error = f"{type(exc).__name__}: {exc}"[:500]
+        finally:
+            _local.run = None
+            for future in run.futures:
+                try:
+                    future.result()
+                except Exception as exc:  # noqa: BLE001 - the stage compiles again when it is called
+                    last_error = f"{type(exc).__name__}: {exc}"[:500]
