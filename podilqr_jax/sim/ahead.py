@@ -35,6 +35,8 @@ from typing import Any, Callable, Iterator, Optional
 import jax
 import numpy as np
 
+from .cache import switched_off
+
 ENV_SWITCH = "PODILQR_COMPILE_AHEAD"
 MAX_WORKERS = 4
 last_error: Optional[str] = None  # why the last dry run was abandoned (None: it was not)
@@ -48,11 +50,9 @@ def workers() -> int:
     ``PODILQR_COMPILE_AHEAD``: unset, ``1`` or ``on``: the cores this process
     may run on, at most ``MAX_WORKERS``, and off on one core; ``0`` or
     ``off``: off; an integer N >= 2: N threads, however many cores."""
-    text = os.environ.get(ENV_SWITCH, "1").strip().lower()
-    if text in ("0", "off", "false", "no"):
+    if switched_off(ENV_SWITCH) or jax.process_count() > 1 or jax.device_count() > 1:
         return 0
-    if jax.process_count() > 1 or jax.device_count() > 1:
-        return 0
+    text = os.environ.get(ENV_SWITCH, "1").strip()
     if text.isdigit() and int(text) >= 2:
         return int(text)
     try:
@@ -68,15 +68,14 @@ class DryRun:
     def __init__(self, pool: concurrent.futures.ThreadPoolExecutor, place: Callable[[np.ndarray], Any]) -> None:
         self.pool = pool
         self.place = place
-        self.futures: list[concurrent.futures.Future] = []
-        self.names: list[str] = []
+        self.compiles: list[tuple[str, concurrent.futures.Future]] = []  # (stage name, its compile)
 
     def submit(self, name: str, target: Callable, args: tuple, kwargs: dict):
-        """Lower ``target(*args, **kwargs)`` now, compile it in the pool, and
-        return zeros shaped like its output (placed as a stage's outputs are)."""
+        """Lower ``target(*args, **kwargs)`` (the stage ``name``) now, compile it
+        in the pool, and return zeros shaped like its output (placed as a
+        stage's outputs are)."""
         lowered = target.lower(*args, **kwargs)
-        self.futures.append(self.pool.submit(lowered.compile))
-        self.names.append(name)
+        self.compiles.append((name, self.pool.submit(lowered.compile)))
         return jax.tree_util.tree_map(lambda s: self.place(np.zeros(s.shape, s.dtype)), lowered.out_info)
 
 
@@ -102,8 +101,8 @@ def dry_run(n_workers: int, place: Callable[[np.ndarray], Any]) -> Iterator[DryR
             last_error = f"{type(exc).__name__}: {exc}"[:500]
         finally:
             _local.run = None
-            for future in run.futures:
+            for name, future in run.compiles:
                 try:
                     future.result()
                 except Exception as exc:  # noqa: BLE001 - the stage compiles again when it is called
-                    last_error = f"{type(exc).__name__}: {exc}"[:500]
+                    last_error = f"{name}: {type(exc).__name__}: {exc}"[:500]

@@ -59,6 +59,11 @@ class CacheInfo(NamedTuple):
 _state = {"directory": None, "source": "off"}
 
 
+def switched_off(variable: str) -> bool:
+    """Whether the environment variable ``variable`` says off (``0``, ``off``, ``false``, ``no``)."""
+    return os.environ.get(variable, "1").strip().lower() in ("0", "off", "false", "no")
+
+
 def default_cache_dir() -> str:
     """``$PODILQR_CACHE_DIR``, else ``$XDG_CACHE_HOME/podilqr_jax/jax``, else ``~/.cache/podilqr_jax/jax``."""
     explicit = os.environ.get(ENV_DIR)
@@ -70,7 +75,7 @@ def default_cache_dir() -> str:
 
 def configure() -> CacheInfo:
     """Set up the persistent compilation cache (called once, on import of the package)."""
-    if os.environ.get(ENV_SWITCH, "1").strip().lower() in ("0", "off", "false", "no"):
+    if switched_off(ENV_SWITCH):
         _state.update(directory=None, source="off")
     elif not jax.config.jax_enable_compilation_cache:
         _state.update(directory=None, source="off")
