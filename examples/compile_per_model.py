@@ -70,14 +70,18 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--source", action="append", help="a checkout to import podilqr_jax from (repeatable)")
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per process")
     p.add_argument("--out", help="also write the figures as JSON here")
+    p.add_argument("--solver", choices=("pod", "mb", "both"), default="both", help="which solver(s) to time")
     a = p.parse_args(argv)
     sources = a.source or ["."]
-    head = " | ".join(f"{w} compile s ({os.path.basename(os.path.abspath(s))})" for w in ("POD", "MB") for s in sources)
-    print(f"| task | {head} |\n|---|" + "---|" * (2 * len(sources)), flush=True)
+    solvers = ("pod", "mb") if a.solver == "both" else (a.solver,)
+    head = " | ".join(
+        f"{w.upper()} compile s ({os.path.basename(os.path.abspath(s))})" for w in solvers for s in sources
+    )
+    print(f"| task | {head} |\n|---|" + "---|" * (len(solvers) * len(sources)), flush=True)
     rows = {}
     for task in a.tasks:
         figures = {}
-        for which in ("pod", "mb"):
+        for which in solvers:
             for s in sources:  # interleaved: each pair sees the same load
                 figures[f"{which}:{s}"] = compile_seconds(s, task, which, a.timeout)
         rows[task] = figures

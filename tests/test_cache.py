@@ -96,11 +96,12 @@ def test_warm_run_loads_from_disk_and_gives_the_same_result(tmp_path):
     assert warm["loads"] == warm["compiles"] == cold["compiles"]
     assert warm["costs"] == cold["costs"] and warm["K"] == cold["K"]  # bit for bit
     # The traced stages too (podilqr_jax/sim/stages.py): the cold run exports the
-    # sysid batch, the fit, the backward pass and the line search, the warm
-    # run reads all of them and traces none.
-    assert cold["fallbacks"] == {} and cold["stages"] == {"exported": 4, "loaded": 0}
-    assert warm["stages"] == {"exported": 0, "loaded": 4}
-    assert len(os.listdir(os.path.join(folder, "podilqr-stages"))) == 4
+    # rollouts the sysid batch and the line search share (sim/shared.py) and the
+    # programs around them (the sysid's inputs and outcome, the line search's),
+    # the fit and the backward pass; the warm run reads all of them and traces none.
+    assert cold["fallbacks"] == {} and cold["stages"] == {"exported": 7, "loaded": 0}
+    assert warm["stages"] == {"exported": 0, "loaded": 7}
+    assert len(os.listdir(os.path.join(folder, "podilqr-stages"))) == 7
 
 
 def test_traced_stages_are_not_kept_without_the_package_cache(tmp_path):

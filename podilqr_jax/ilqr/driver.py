@@ -47,7 +47,7 @@ from .backward import QuadraticCost, Regularisation, backward_pass
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import SolverConfig, reidentify_scale
 from .interrupts import deferred_interrupts
-from .line_search import line_search
+from .line_search import LineSearchResult, line_search, line_search_grouped
 from .result import IterationInfo, Result
 from .state import Nominal, SolverState
 from .stopping import Stop
@@ -89,6 +89,8 @@ class Context:
     alphas: Any  # ... on the device, with alpha = 0 last under noise
     ls_rollouts: int
     ls_chunk: Optional[int]
+    ls_width: Optional[int]  # the line search's rollouts run by the program the sysid batch shares (``sim.shared``)
+    zero_du: Any  # [ls_rollouts, T, nu] zeros, with ``ls_width``
     accept_ratio: Any
     zero_k: Any
     no_change: Any
@@ -137,14 +139,24 @@ def measure(ctx: Context, st: SolverState, timing: Timing, policy: Policy, k, co
     """The batched line search of ``policy`` with feed-forward ``k``; returns (its result, accepted)."""
     t0 = time.perf_counter()
     st.ls_key, sub = jax.random.split(st.ls_key)
-    ls = line_search(
-        ctx.dims, ctx.q, ctx.data, policy, k, ctx.alphas, ctx.to_device(cost0), dV1, dV2, ctx.accept_ratio, sub,
-        ctx.n_fwd, ctx.noisy, ctx.ls_chunk,
-    )  # fmt: skip
+    ls = search(ctx, policy, k, ctx.to_device(cost0), dV1, dV2, sub)
     accepted = bool(ls.accepted)
     st.record.diverged_candidates += int(ls.n_diverged)
     timing.add("line_search", t0)
     return ls, accepted
+
+
+def search(ctx: Context, policy: Policy, k, cost0, dV1, dV2, key) -> LineSearchResult:
+    """The line search as this solve runs it: one stage, or through the rollout program the sysid batch shares."""
+    if ctx.ls_width is not None:
+        return line_search_grouped(
+            ctx.dims, ctx.q, ctx.data, policy, k, ctx.alphas, cost0, dV1, dV2, ctx.accept_ratio, key, ctx.zero_du,
+            ctx.n_fwd, ctx.noisy,
+        )  # fmt: skip
+    return line_search(
+        ctx.dims, ctx.q, ctx.data, policy, k, ctx.alphas, cost0, dV1, dV2, ctx.accept_ratio, key,
+        ctx.n_fwd, ctx.noisy, ctx.ls_chunk,
+    )  # fmt: skip
 
 
 def ground_truth(ctx: Context, st: SolverState, timing: Timing) -> tuple[float, float]:
@@ -180,10 +192,7 @@ def compile_ahead(ctx: Context, st: SolverState, timing: Timing) -> int:
             found = ctx.identify(key, nominal, st.gains, sigma, Experiment(bool(st.mirrored), bool(st.open_loop)))
             backward_pass(found.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, to_device(st.mu), ctx.reg)
             _, sub = jax.random.split(st.ls_key)
-            line_search(
-                ctx.dims, ctx.q, ctx.data, policy_of(nominal, st.gains), ctx.zero_k, ctx.alphas, to_device(np.inf),
-                ctx.no_change, ctx.no_change, ctx.accept_ratio, sub, ctx.n_fwd, ctx.noisy, ctx.ls_chunk,
-            )  # fmt: skip
+            search(ctx, policy_of(nominal, st.gains), ctx.zero_k, to_device(np.inf), ctx.no_change, ctx.no_change, sub)
             if ctx.noisy:
                 true_costs(ctx.dims, ctx.q, ctx.data, policy_of(nominal, st.gains))
     timing.add("compile", t0)
