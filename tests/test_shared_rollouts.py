@@ -21,26 +21,30 @@ HORIZON = 17  # no other test uses it: the stages compile cold here
 
 
 @pytest.mark.parametrize(
-    ("n_s", "n_avg", "ls_rollouts", "sysid_chunk", "ls_chunk", "expected"),
+    ("setting", "n_s", "n_avg", "ls_rollouts", "sysid_chunk", "ls_chunk", "expected"),
     [
-        (40, 1, 10, None, None, 10),  # the bundled defaults: 4 calls of 10
-        (40, 10, 440, 4000, 4000, 440),  # the averaged variant: one call, 40 rows of padding
-        (40, 1, 10, 20, None, None),  # the sysid batch runs in chunks
-        (40, 1, 10, None, 8, None),  # the line search runs in chunks
-        (400, 1, 10, None, None, None),  # 40 calls: more than MAX_GROUPS
-        (8 * 10, 1, 10, None, None, 10),  # exactly MAX_GROUPS
+        (None, 40, 10, 440, 4000, 4000, 440),  # the averaged variant: one call, 40 rows of padding
+        ("auto", 8, 1, 10, None, None, 10),  # one call, a quarter padded
+        (None, 40, 1, 10, None, None, None),  # the bundled defaults: 4 calls only when asked
+        (None, 7, 1, 10, None, None, None),  # more than a quarter padded
+        ("1", 40, 1, 10, None, None, 10),  # asked: 4 calls of 10
+        ("on", 8 * 10, 1, 10, None, None, 10),  # exactly MAX_GROUPS calls
+        ("1", 400, 1, 10, None, None, None),  # 40 calls: more than MAX_GROUPS
+        ("1", 40, 1, 10, 20, None, None),  # the sysid batch runs in chunks
+        ("1", 40, 1, 10, None, 8, None),  # the line search runs in chunks
+        ("0", 40, 10, 440, 4000, 4000, None),  # off
+        ("off", 40, 1, 10, None, None, None),
     ],
 )
-def test_width_follows_the_batches(monkeypatch, n_s, n_avg, ls_rollouts, sysid_chunk, ls_chunk, expected):
-    monkeypatch.delenv(shared.ENV_SWITCH, raising=False)
+def test_width_follows_the_batches_and_the_switch(
+    monkeypatch, setting, n_s, n_avg, ls_rollouts, sysid_chunk, ls_chunk, expected
+):
+    if setting is None:
+        monkeypatch.delenv(shared.ENV_SWITCH, raising=False)
+    else:
+        monkeypatch.setenv(shared.ENV_SWITCH, setting)
     assert shared.MAX_GROUPS == 8
     assert shared.width(n_s, n_avg, ls_rollouts, sysid_chunk, ls_chunk) == expected
-
-
-@pytest.mark.parametrize("setting", ["0", "off"])
-def test_the_switch_turns_it_off(monkeypatch, setting):
-    monkeypatch.setenv(shared.ENV_SWITCH, setting)
-    assert shared.width(40, 1, 10, None, None) is None
 
 
 def _setup(noise=None):
@@ -97,7 +101,7 @@ def test_the_line_search_is_the_fused_stage(noise, n_fwd):
 
 def test_a_solve_compiles_the_rollouts_once_and_matches_the_fused_stages(monkeypatch):
     monkeypatch.setattr(stages, "folder", lambda: None)  # plain jits: the compile log names the stages
-    monkeypatch.delenv(shared.ENV_SWITCH, raising=False)
+    monkeypatch.setenv(shared.ENV_SWITCH, "1")  # the sysid batch in several calls (auto: in one only)
     seen: list[str] = []
 
     class Log(logging.Handler):

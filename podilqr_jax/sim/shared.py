@@ -28,16 +28,34 @@ round-off: XLA may order a few operations differently in another program;
 tests/test_shared_rollouts.py measures it). A switch to the mirrored
 experiment only adds calls of the same program.
 
-When: :func:`width` says, once per solve. On one CPU device (on a GPU a small
-batch is bound by latency, and calls in sequence would cost time; over
-several devices the sysid batch is sharded whole), for POD-iLQR, when
-neither batch runs in chunks under the memory budget and the sysid batch
-needs at most ``MAX_GROUPS`` calls. ``PODILQR_SHARED_ROLLOUTS=0`` switches it
-off (read per solve).
+When: :func:`width` says, once per solve, from ``PODILQR_SHARED_ROLLOUTS``
+(read per solve):
+
+- unset or ``auto``: only where the sysid batch runs as *one* call, padded by
+  at most a quarter (the averaged variant's n_s x n_avg = 400 sysid rollouts
+  in the line search's 440). Splitting the sysid batch into several calls
+  costs run time on a CPU: a call of a small batch costs nearly what a
+  larger one does (the per-operation overhead of a scan of small operations,
+  the constraint solver's loops running to the slowest rollout), so the 4
+  calls of 10 that replace one of 40 made an iteration 1.2-1.7x slower on
+  the bundled tasks and dm_control's cart-pole (docs/performance.md), every
+  iteration of every run, while the compile they save is paid once per
+  machine (the persistent cache keeps it).
+- ``1`` or ``on``: also in up to ``MAX_GROUPS`` calls: the fastest first
+  result for a cold run of a large model (dmc_finger_turn compiles in 0.65
+  of the time and iterates no slower), at that run-time cost on small ones.
+- ``0`` or ``off``: never.
+
+In every case only on one CPU device (on a GPU a small batch is bound by
+latency; over several devices the sysid batch is sharded whole), for
+POD-iLQR, and where neither batch runs in chunks under the memory budget.
+The model-based reference has no sysid batch and keeps its one line-search
+program.
 """
 
 from __future__ import annotations
 
+import os
 from typing import Optional
 
 import jax
@@ -56,12 +74,15 @@ MAX_GROUPS = 8  # calls of the shared program per sysid batch (not mirrored), at
 def width(n_s: int, n_avg: int, ls_rollouts: int, sysid_chunk: Optional[int], ls_chunk: Optional[int]) -> Optional[int]:
     """The shared program's batch (the line search's ``ls_rollouts``), or None
     where the stages keep their own rollouts (module docstring)."""
+    setting = os.environ.get(ENV_SWITCH, "auto").strip().lower()
     if switched_off(ENV_SWITCH) or jax.default_backend() != "cpu" or jax.device_count() > 1:
         return None
     batch = n_s * n_avg
     if (sysid_chunk is not None and batch > sysid_chunk) or (ls_chunk is not None and ls_rollouts > ls_chunk):
         return None
-    return ls_rollouts if groups(batch, ls_rollouts) <= MAX_GROUPS else None
+    if setting in ("1", "on"):
+        return ls_rollouts if groups(batch, ls_rollouts) <= MAX_GROUPS else None
+    return ls_rollouts if batch <= ls_rollouts <= 1.25 * batch else None
 
 
 def groups(batch: int, width: int) -> int:
