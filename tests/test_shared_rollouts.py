@@ -47,6 +47,14 @@ def test_width_follows_the_batches_and_the_switch(
     assert shared.width(n_s, n_avg, ls_rollouts, sysid_chunk, ls_chunk) == expected
 
 
+def test_an_unknown_setting_warns_and_means_auto(monkeypatch):
+    monkeypatch.setenv(shared.ENV_SWITCH, "sometimes")
+    with pytest.warns(UserWarning, match="not one of auto"):
+        assert shared.width(40, 1, 10, None, None) is None
+    with pytest.warns(UserWarning, match="not one of auto"):
+        assert shared.width(40, 10, 440, None, None) == 440
+
+
 def _setup(noise=None):
     env = pj.make_task("pendulum-partial", horizon=HORIZON, noise=noise)
     dims, data, q = env.dims, on_device(env.data), 2

@@ -44,7 +44,7 @@ When: :func:`width` says, once per solve, from ``PODILQR_SHARED_ROLLOUTS``
 - ``1`` or ``on``: also in up to ``MAX_GROUPS`` calls: the fastest first
   result for a cold run of a large model (dmc_finger_turn compiles in 0.65
   of the time and iterates no slower), at that run-time cost on small ones.
-- ``0`` or ``off``: never.
+- ``0`` or ``off``: never. Anything else warns and means ``auto``.
 
 In every case only on one CPU device (on a GPU a small batch is bound by
 latency; over several devices the sysid batch is sharded whole), for
@@ -56,6 +56,7 @@ program.
 from __future__ import annotations
 
 import os
+import warnings
 from typing import Optional
 
 import jax
@@ -75,12 +76,17 @@ def width(n_s: int, n_avg: int, ls_rollouts: int, sysid_chunk: Optional[int], ls
     """The shared program's batch (the line search's ``ls_rollouts``), or None
     where the stages keep their own rollouts (module docstring)."""
     setting = os.environ.get(ENV_SWITCH, "auto").strip().lower()
+    if setting not in ("", "auto", "1", "on", "true", "yes") and not switched_off(ENV_SWITCH):
+        warnings.warn(
+            f"{ENV_SWITCH}={os.environ[ENV_SWITCH]!r} is not one of auto, 1/on, 0/off; using auto",
+            stacklevel=2,
+        )
     if switched_off(ENV_SWITCH) or jax.default_backend() != "cpu" or jax.device_count() > 1:
         return None
     batch = n_s * n_avg
     if (sysid_chunk is not None and batch > sysid_chunk) or (ls_chunk is not None and ls_rollouts > ls_chunk):
         return None
-    if setting in ("1", "on"):
+    if setting in ("1", "on", "true", "yes"):
         return ls_rollouts if groups(batch, ls_rollouts) <= MAX_GROUPS else None
     return ls_rollouts if batch <= ls_rollouts <= 1.25 * batch else None
 
