@@ -4,6 +4,7 @@ the same rollouts as the fused stages, one compile of the rollouts per solve."""
 from __future__ import annotations
 
 import logging
+import os
 import re
 
 import jax
@@ -13,6 +14,7 @@ import pytest
 import podilqr_jax as pj
 from podilqr_jax.identify.info_state import info_dim
 from podilqr_jax.ilqr import line_search as ls
+from podilqr_jax.ilqr import solver
 from podilqr_jax.sim import rollout, shared, stages
 from podilqr_jax.sim.rollout import Policy, on_device
 
@@ -21,30 +23,61 @@ HORIZON = 17  # no other test uses it: the stages compile cold here
 
 
 @pytest.mark.parametrize(
-    ("setting", "n_s", "n_avg", "ls_rollouts", "sysid_chunk", "ls_chunk", "expected"),
+    ("setting", "n_s", "n_avg", "ls_rollouts", "sysid_chunk", "ls_chunk", "expected", "rows"),
     [
-        (None, 40, 10, 440, 4000, 4000, 440),  # the averaged variant: one call, 40 rows of padding
-        ("auto", 8, 1, 10, None, None, 10),  # one call, a quarter padded
-        (None, 40, 1, 10, None, None, None),  # the bundled defaults: 4 calls only when asked
-        (None, 7, 1, 10, None, None, None),  # more than a quarter padded
-        ("1", 40, 1, 10, None, None, 10),  # asked: 4 calls of 10
-        ("on", 8 * 10, 1, 10, None, None, 10),  # exactly MAX_GROUPS calls
-        ("1", 400, 1, 10, None, None, None),  # 40 calls: more than MAX_GROUPS
-        ("1", 40, 1, 10, 20, None, None),  # the sysid batch runs in chunks
-        ("1", 40, 1, 10, None, 8, None),  # the line search runs in chunks
-        ("0", 40, 10, 440, 4000, 4000, None),  # off
-        ("off", 40, 1, 10, None, None, None),
+        (None, 40, 10, 440, 4000, 4000, 440, 0),  # the averaged variant: one call, 40 rows of padding
+        ("auto", 8, 1, 10, None, None, 10, 0),  # one call, a quarter padded
+        (None, 40, 1, 10, None, None, None, 0),  # the bundled defaults: 4 calls only when asked
+        (None, 7, 1, 10, None, None, None, 0),  # more than a quarter padded
+        ("1", 40, 1, 10, None, None, 10, 0),  # asked: 4 calls of 10
+        ("on", 8 * 10, 1, 10, None, None, 10, 0),  # exactly MAX_GROUPS calls
+        ("1", 400, 1, 10, None, None, None, 0),  # 40 calls: more than MAX_GROUPS
+        ("1", 40, 1, 10, 20, None, None, 0),  # the sysid batch runs in chunks
+        ("1", 40, 1, 10, None, 8, None, 0),  # the line search runs in chunks
+        ("0", 40, 10, 440, 4000, 4000, None, 0),  # off
+        ("off", 40, 1, 10, None, None, None, 0),
+        (None, 40, 1, 10, None, None, 10, 38),  # a contact model (the hopper's rows): 4 calls by themselves
+        ("auto", 40, 1, 10, None, None, None, 31),  # too few rows
+        (None, 400, 1, 10, None, None, None, 93),  # many rows, but more than MAX_GROUPS calls
+        (None, 40, 1, 10, 20, None, None, 93),  # many rows, but the sysid batch runs in chunks
+        ("0", 40, 1, 10, None, None, None, 93),  # off
     ],
 )
 def test_width_follows_the_batches_and_the_switch(
-    monkeypatch, setting, n_s, n_avg, ls_rollouts, sysid_chunk, ls_chunk, expected
+    monkeypatch, setting, n_s, n_avg, ls_rollouts, sysid_chunk, ls_chunk, expected, rows
 ):
     if setting is None:
         monkeypatch.delenv(shared.ENV_SWITCH, raising=False)
     else:
         monkeypatch.setenv(shared.ENV_SWITCH, setting)
-    assert shared.MAX_GROUPS == 8
-    assert shared.width(n_s, n_avg, ls_rollouts, sysid_chunk, ls_chunk) == expected
+    assert shared.MAX_GROUPS == 8 and shared.MANY_ROWS == 32
+    assert shared.width(n_s, n_avg, ls_rollouts, sysid_chunk, ls_chunk, rows) == expected
+
+
+def test_a_contact_model_shares_by_default_and_a_small_one_does_not(monkeypatch):
+    # No constraint: the bundled pendulum. Contacts: Gymnasium's hopper, as it
+    # ships (its foot and leg against the floor, and its joint limits).
+    monkeypatch.delenv(shared.ENV_SWITCH, raising=False)
+    pendulum = pj.make_task("pendulum-full")
+    assert shared.constraint_rows(pendulum.data.model) == 0
+    assert _default_width(pendulum) is None
+    pytest.importorskip("gymnasium", reason="the `test` extra installs gymnasium")
+    from podilqr_jax.task.taskfile import load_task
+
+    gallery = os.path.join(os.path.dirname(os.path.dirname(__file__)), "examples", "tasks", "third_party")
+    hopper = load_task(os.path.join(gallery, "gym_hopper_balance.toml"))
+    rows = shared.constraint_rows(hopper.data.model)
+    assert rows >= shared.MANY_ROWS
+    d = jax.eval_shape(rollout.make_data, hopper.data.model)
+    assert rows == d._impl.efc_D.shape[0]
+    cfg = pj.default_config(hopper)
+    assert cfg.n_s > cfg.n_alphas * cfg.resolved_n_forward()  # several calls
+    assert _default_width(hopper) == cfg.n_alphas * cfg.resolved_n_forward()
+
+
+def _default_width(env):
+    cfg = pj.default_config(env)
+    return solver._shared_width(env.dims, env.data, cfg, False, cfg.resolved_n_forward())
 
 
 def test_an_unknown_setting_warns_and_means_auto(monkeypatch):

@@ -116,7 +116,8 @@ def _shared_width(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int) -> Opt
     ls_rollouts = (cfg.n_alphas + (1 if noisy else 0)) * n_fwd
     sysid_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy))
     ls_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1)
-    return shared.width(cfg.n_s, cfg.resolved_n_avg(), ls_rollouts, sysid_chunk, ls_chunk)
+    rows = shared.constraint_rows(data.model)
+    return shared.width(cfg.n_s, cfg.resolved_n_avg(), ls_rollouts, sysid_chunk, ls_chunk, rows)
 
 
 def _context(

@@ -31,19 +31,26 @@ experiment only adds calls of the same program.
 When: :func:`width` says, once per solve, from ``PODILQR_SHARED_ROLLOUTS``
 (read per solve):
 
-- unset or ``auto``: only where the sysid batch runs as *one* call, padded by
+- unset or ``auto``: where the sysid batch runs as *one* call, padded by
   at most a quarter (the averaged variant's n_s x n_avg = 400 sysid rollouts
-  in the line search's 440). Splitting the sysid batch into several calls
-  costs run time on a CPU: a call of a small batch costs nearly what a
-  larger one does (the per-operation overhead of a scan of small operations,
-  the constraint solver's loops running to the slowest rollout), so the 4
-  calls of 10 that replace one of 40 made an iteration 1.2-1.7x slower on
-  the bundled tasks and dm_control's cart-pole (docs/performance.md), every
-  iteration of every run, while the compile they save is paid once per
-  machine (the persistent cache keeps it).
-- ``1`` or ``on``: also in up to ``MAX_GROUPS`` calls: the fastest first
-  result for a cold run of a large model (dmc_finger_turn compiles in 0.65
-  of the time and iterates no slower), at that run-time cost on small ones.
+  in the line search's 440), and, for a model whose MJX step carries at
+  least ``MANY_ROWS`` constraint rows (:func:`constraint_rows`: contacts),
+  also in up to ``MAX_GROUPS`` calls. Splitting the sysid batch into calls
+  costs run time where a rollout is cheap: a call of a small batch costs
+  nearly what a larger one does (the per-operation overhead of a scan of
+  small operations, the constraint solver's loops running to the slowest
+  rollout), so the 4 calls of 10 that replace one of 40 made an iteration
+  1.2-1.7x slower on the bundled tasks and dm_control's cart-pole (0-1
+  rows; docs/performance.md), every iteration of every run, while the
+  compile they save is paid once per machine (the persistent cache keeps
+  it). Where the constraint solver carries contact rows a rollout costs far
+  more than a call's overhead: dmc_finger_turn (93 rows) and Gymnasium's
+  hopper (38) iterate no slower in 4 calls (0.95 and 0.93 of the time) and
+  compile in 0.65 and 0.75 of it. Every model the project has measured has
+  either at most 3 rows (no contacts) or at least 38.
+- ``1`` or ``on``: up to ``MAX_GROUPS`` calls whatever the model: the
+  fastest first result for a cold run, at the run-time cost above on small
+  models.
 - ``0`` or ``off``: never. Anything else warns and means ``auto``.
 
 In every case only on one CPU device (on a GPU a small batch is bound by
@@ -65,16 +72,41 @@ import jax.numpy as jnp
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
 from .cache import switched_off
-from .rollout import Policy, Trajectory, average_repeats, injected_perturbations, shard_batch, simulate
+from .rollout import (
+    Policy,
+    Trajectory,
+    average_repeats,
+    injected_perturbations,
+    make_data,
+    shard_batch,
+    simulate,
+)
 from .stages import stage
 
 ENV_SWITCH = "PODILQR_SHARED_ROLLOUTS"
 MAX_GROUPS = 8  # calls of the shared program per sysid batch (not mirrored), at most
+MANY_ROWS = 32  # constraint rows from which ``auto`` also runs the sysid batch in several calls
 
 
-def width(n_s: int, n_avg: int, ls_rollouts: int, sysid_chunk: Optional[int], ls_chunk: Optional[int]) -> Optional[int]:
+def constraint_rows(model) -> int:
+    """The constraint rows MJX's step carries for ``model`` (a fixed count in
+    MJX: every possible contact, limit, friction loss and equality row), read
+    from the shapes of its data without touching a device; 0 where this MJX
+    or implementation does not say."""
+    try:
+        d = jax.eval_shape(make_data, model)
+    except Exception:  # noqa: BLE001 - an implementation whose data cannot be shaped here: no rows known
+        return 0
+    efc_J = getattr(getattr(d, "_impl", d), "efc_J", None)
+    return 0 if efc_J is None or len(efc_J.shape) != 2 else int(efc_J.shape[0])
+
+
+def width(
+    n_s: int, n_avg: int, ls_rollouts: int, sysid_chunk: Optional[int], ls_chunk: Optional[int], rows: int = 0
+) -> Optional[int]:
     """The shared program's batch (the line search's ``ls_rollouts``), or None
-    where the stages keep their own rollouts (module docstring)."""
+    where the stages keep their own rollouts (module docstring); ``rows``:
+    the model's :func:`constraint_rows`."""
     setting = os.environ.get(ENV_SWITCH, "auto").strip().lower()
     if setting not in ("", "auto", "1", "on", "true", "yes") and not switched_off(ENV_SWITCH):
         warnings.warn(
@@ -86,7 +118,7 @@ def width(n_s: int, n_avg: int, ls_rollouts: int, sysid_chunk: Optional[int], ls
     batch = n_s * n_avg
     if (sysid_chunk is not None and batch > sysid_chunk) or (ls_chunk is not None and ls_rollouts > ls_chunk):
         return None
-    if setting in ("1", "on", "true", "yes"):
+    if setting in ("1", "on", "true", "yes") or rows >= MANY_ROWS:
         return ls_rollouts if groups(batch, ls_rollouts) <= MAX_GROUPS else None
     return ls_rollouts if batch <= ls_rollouts <= 1.25 * batch else None
 
