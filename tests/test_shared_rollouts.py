@@ -38,6 +38,9 @@ HORIZON = 17  # no other test uses it: the stages compile cold here
         ("off", 40, 1, 10, None, None, None, 0),
         (None, 40, 1, 10, None, None, 10, 38),  # a contact model (the hopper's rows): 4 calls by themselves
         ("auto", 40, 1, 10, None, None, None, 31),  # too few rows
+        (None, 45, 1, 10, None, None, 10, 93),  # 5 calls, 5 rollouts of padding
+        (None, 12, 1, 10, None, None, None, 93),  # 2 calls, 8 of padding: more than a quarter
+        ("1", 12, 1, 10, None, None, 10, 0),  # asked: padded as needed
         (None, 400, 1, 10, None, None, None, 93),  # many rows, but more than MAX_GROUPS calls
         (None, 40, 1, 10, 20, None, None, 93),  # many rows, but the sysid batch runs in chunks
         ("0", 40, 1, 10, None, None, None, 93),  # off
