@@ -36,11 +36,11 @@ When: :func:`width` says, once per solve, from ``PODILQR_SHARED_ROLLOUTS``
   in the line search's 440), and, for a model whose MJX step carries at
   least ``MANY_ROWS`` constraint rows (:func:`constraint_rows`: contacts),
   also in up to ``MAX_GROUPS`` calls, again padded by at most a quarter in
-  all (n_s = 40 in 4 calls of 10; not n_s = 12 in 2 calls). Splitting the sysid batch into calls
-  costs run time where a rollout is cheap: a call of a small batch costs
-  nearly what a larger one does (the per-operation overhead of a scan of
-  small operations, the constraint solver's loops running to the slowest
-  rollout), so the 4 calls of 10 that replace one of 40 made an iteration
+  all (n_s = 40 in 4 calls of 10; not n_s = 12 in 2 calls). Splitting the
+  sysid batch into calls costs run time where a rollout is cheap: a call of
+  a small batch costs nearly what a larger one does (the per-operation
+  overhead of a scan of small operations, the constraint solver's loops
+  running to the slowest rollout), so the 4 calls of 10 that replace one of 40 made an iteration
   1.2-1.7x slower on the bundled tasks and dm_control's cart-pole (0-1
   rows; docs/performance.md), every iteration of every run, while the
   compile they save is paid once per machine (the persistent cache keeps
@@ -94,12 +94,9 @@ def constraint_rows(model) -> int:
     MJX: every possible contact, limit, friction loss and equality row), read
     from the shapes of its data without touching a device; 0 where this MJX
     or implementation does not say."""
-    try:
-        d = jax.eval_shape(make_data, model)
-    except Exception:  # noqa: BLE001 - an implementation whose data cannot be shaped here: no rows known
-        return 0
+    d = jax.eval_shape(make_data, model)
     efc_J = getattr(getattr(d, "_impl", d), "efc_J", None)
-    return 0 if efc_J is None or len(efc_J.shape) != 2 else int(efc_J.shape[0])
+    return 0 if efc_J is None else int(efc_J.shape[0])
 
 
 def width(
@@ -122,12 +119,10 @@ def width(
     calls = groups(batch, ls_rollouts)
     if setting in ("1", "on", "true", "yes"):
         return ls_rollouts if calls <= MAX_GROUPS else None
-    # By itself, padded by at most a quarter: a padding rollout costs what a
-    # sysid rollout does, and on a contact model that is what an iteration is made of.
-    padded_little = calls * ls_rollouts <= 1.25 * batch
-    if rows >= MANY_ROWS and calls <= MAX_GROUPS and padded_little:
-        return ls_rollouts
-    return ls_rollouts if calls == 1 and padded_little else None
+    # By itself: one call, or several on a contact model, padded by at most a
+    # quarter in all (a padding rollout costs what a sysid rollout does).
+    most = MAX_GROUPS if rows >= MANY_ROWS else 1
+    return ls_rollouts if calls <= most and calls * ls_rollouts <= 1.25 * batch else None
 
 
 def groups(batch: int, width: int) -> int:
