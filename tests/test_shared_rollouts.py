@@ -15,7 +15,7 @@ import podilqr_jax as pj
 from podilqr_jax.identify.info_state import info_dim
 from podilqr_jax.ilqr import line_search as ls
 from podilqr_jax.ilqr import solver
-from podilqr_jax.sim import rollout, shared, stages
+from podilqr_jax.sim import contacts, rollout, shared, stages
 from podilqr_jax.sim.rollout import Policy, on_device
 
 COMPILED = re.compile(r"Finished XLA compilation of jit\((\S+)\)")
@@ -53,7 +53,7 @@ def test_width_follows_the_batches_and_the_switch(
         monkeypatch.delenv(shared.ENV_SWITCH, raising=False)
     else:
         monkeypatch.setenv(shared.ENV_SWITCH, setting)
-    assert shared.MAX_GROUPS == 8 and shared.MANY_ROWS == 32
+    assert shared.MAX_GROUPS == 8 and contacts.MANY_ROWS == 32
     assert shared.width(n_s, n_avg, ls_rollouts, sysid_chunk, ls_chunk, rows) == expected
 
 
@@ -62,15 +62,15 @@ def test_a_contact_model_shares_by_default_and_a_small_one_does_not(monkeypatch)
     # ships (its foot and leg against the floor, and its joint limits).
     monkeypatch.delenv(shared.ENV_SWITCH, raising=False)
     pendulum = pj.make_task("pendulum-full")
-    assert shared.constraint_rows(pendulum.data.model) == 0
+    assert contacts.constraint_rows(pendulum.data.model) == 0
     assert _default_width(pendulum) is None
     pytest.importorskip("gymnasium", reason="the `test` extra installs gymnasium")
     from podilqr_jax.task.taskfile import load_task
 
     gallery = os.path.join(os.path.dirname(os.path.dirname(__file__)), "examples", "tasks", "third_party")
     hopper = load_task(os.path.join(gallery, "gym_hopper_balance.toml"))
-    rows = shared.constraint_rows(hopper.data.model)
-    assert rows >= shared.MANY_ROWS
+    rows = contacts.constraint_rows(hopper.data.model)
+    assert rows >= contacts.MANY_ROWS
     d = jax.eval_shape(rollout.make_data, hopper.data.model)
     assert rows == d._impl.efc_D.shape[0]
     cfg = pj.default_config(hopper)

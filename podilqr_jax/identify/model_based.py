@@ -22,9 +22,13 @@ from ..task.env import EnvData, EnvDims
 from .sysid import LinearModel
 
 
-@stage(static_argnames=("dims",), outputs=(LinearModel,))
-def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar) -> LinearModel:
-    """(A_t, B_t) = Jacobians of the control-step map along (x_bar, u_bar)."""
+@stage(static_argnames=("dims", "one_at_a_time"), outputs=(LinearModel,))
+def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar, one_at_a_time: bool = False) -> LinearModel:
+    """(A_t, B_t) = Jacobians of the control-step map along (x_bar, u_bar).
+
+    ``one_at_a_time``: the T (nx + nu) JVPs run as a ``lax.map`` of one
+    unbatched JVP instead of one ``vmap`` of all; the solver's choice for a
+    contact-rich model on a CPU (``sim.contacts.one_at_a_time``)."""
     d0 = mjx.make_data(data.model)
 
     def f(x, u):
@@ -41,12 +45,26 @@ def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar) -> LinearModel:
     # solves of the bundled tasks end at the same costs to 1e-15 relative),
     # with one batching level instead of two: a cheaper trace and XLA compile
     # (docs/performance.md). The primal is recomputed per column.
+    #
+    # On a contact-rich model the batch costs more than it saves: vmap turns
+    # the constraint solver's loops into masked ones, and the batched JVP of
+    # Gymnasium's hopper traces for 3x and compiles for 1.4x as long as one
+    # unbatched JVP in a loop, which runs no slower there (dm_control's
+    # finger: 2x, 1.1x, and the loop runs 2-3x faster). Without contacts the
+    # batch runs 2-4x faster, so it stays (docs/performance.md).
     T, nx, nu = u_bar.shape[0], dims.nx, dims.nu
     n = nx + nu
     x_rep = jnp.repeat(x_bar[:-1], n, axis=0)
     u_rep = jnp.repeat(u_lin, n, axis=0)
     e = jnp.tile(jnp.eye(n, dtype=x_bar.dtype), (T, 1))
-    _, cols = jax.vmap(lambda x, u, e_j: jax.jvp(f, (x, u), (e_j[:nx], e_j[nx:])))(x_rep, u_rep, e)
+
+    def column(x, u, e_j):
+        return jax.jvp(f, (x, u), (e_j[:nx], e_j[nx:]))[1]
+
+    if one_at_a_time:
+        cols = jax.lax.map(lambda a: column(*a), (x_rep, u_rep, e))
+    else:
+        cols = jax.vmap(column)(x_rep, u_rep, e)
     AB = jnp.swapaxes(cols.reshape(T, n, nx), 1, 2)  # [T, nx, nx + nu]
     return LinearModel(AB[:, :, :nx], AB[:, :, nx:])
 

@@ -24,7 +24,7 @@ from ..errors import ConfigError
 from ..identify.identification import Exact, actuator_units, data_based
 from ..identify.info_state import info_dim, observation_selector
 from ..identify.model_based import nonfinite_hint
-from ..sim import shared
+from ..sim import contacts, shared
 from ..sim.rollout import bytes_per_rollout, on_device
 from ..task.env import Env, mjx_model_of
 from .backward import QuadraticCost, Regularisation
@@ -106,7 +106,7 @@ def solve_model_based(
     run_options = _run_options(checkpoint, checkpoint_every, resume)
     view = env.full_state_view()
     dims, data = view.dims, on_device(view.data)
-    identify = Exact(dims, data, nonfinite_hint(env.mj_model))
+    identify = Exact(dims, data, nonfinite_hint(env.mj_model), contacts.one_at_a_time(data.model))
     ctx = _context("model-based", env, dims, data, cfg, 1, identify, False, 1)
     return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
 
@@ -116,7 +116,7 @@ def _shared_width(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int) -> Opt
     ls_rollouts = (cfg.n_alphas + (1 if noisy else 0)) * n_fwd
     sysid_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy))
     ls_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1)
-    rows = shared.constraint_rows(data.model)
+    rows = contacts.constraint_rows(data.model)
     return shared.width(cfg.n_s, cfg.resolved_n_avg(), ls_rollouts, sysid_chunk, ls_chunk, rows)
 
 

@@ -34,7 +34,7 @@ When: :func:`width` says, once per solve, from ``PODILQR_SHARED_ROLLOUTS``
 - unset or ``auto``: where the sysid batch runs as *one* call, padded by
   at most a quarter (the averaged variant's n_s x n_avg = 400 sysid rollouts
   in the line search's 440), and, for a model whose MJX step carries at
-  least ``MANY_ROWS`` constraint rows (:func:`constraint_rows`: contacts),
+  least ``MANY_ROWS`` constraint rows (``contacts.constraint_rows``),
   also in up to ``MAX_GROUPS`` calls, again padded by at most a quarter in
   all (n_s = 40 in 4 calls of 10; not n_s = 12 in 2 calls). Splitting the
   sysid batch into calls costs run time where a rollout is cheap: a call of
@@ -58,7 +58,8 @@ In every case only on one CPU device (on a GPU a small batch is bound by
 latency; over several devices the sysid batch is sharded whole), for
 POD-iLQR, and where neither batch runs in chunks under the memory budget.
 The model-based reference has no sysid batch and keeps its one line-search
-program.
+program (on a contact-rich model it computes its Jacobians one JVP at a
+time instead: ``contacts.one_at_a_time``).
 """
 
 from __future__ import annotations
@@ -73,12 +74,12 @@ import jax.numpy as jnp
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
 from .cache import switched_off
+from .contacts import MANY_ROWS
 from .rollout import (
     Policy,
     Trajectory,
     average_repeats,
     injected_perturbations,
-    make_data,
     shard_batch,
     simulate,
 )
@@ -86,17 +87,6 @@ from .stages import stage
 
 ENV_SWITCH = "PODILQR_SHARED_ROLLOUTS"
 MAX_GROUPS = 8  # calls of the shared program per sysid batch (not mirrored), at most
-MANY_ROWS = 32  # constraint rows from which ``auto`` also runs the sysid batch in several calls
-
-
-def constraint_rows(model) -> int:
-    """The constraint rows MJX's step carries for ``model`` (a fixed count in
-    MJX: every possible contact, limit, friction loss and equality row), read
-    from the shapes of its data without touching a device; 0 where this MJX
-    or implementation does not say."""
-    d = jax.eval_shape(make_data, model)
-    efc_J = getattr(getattr(d, "_impl", d), "efc_J", None)
-    return 0 if efc_J is None else int(efc_J.shape[0])
 
 
 def width(
@@ -104,7 +94,7 @@ def width(
 ) -> Optional[int]:
     """The shared program's batch (the line search's ``ls_rollouts``), or None
     where the stages keep their own rollouts (module docstring); ``rows``:
-    the model's :func:`constraint_rows`."""
+    the model's ``contacts.constraint_rows``."""
     setting = os.environ.get(ENV_SWITCH, "auto").strip().lower()
     if setting not in ("", "auto", "1", "on", "true", "yes") and not switched_off(ENV_SWITCH):
         warnings.warn(

@@ -1,0 +1,53 @@
+"""How heavy a model's MJX step is: its constraint rows, and what that decides.
+
+MJX sizes its constraint solver for every contact, limit, friction loss and
+equality row the model could ever have, so the row count is fixed per model
+and readable from the shapes of its data before anything compiles
+(:func:`constraint_rows`). The models the project has measured fall on two
+sides of a wide gap: at most 3 rows (no contacts: the bundled tasks and the
+dm_control and Gymnasium models without a floor) or at least 38 (the
+Gymnasium hopper 38, dm_control's finger 93; from dm_control's suite also
+walker 62, ball-in-cup 65, hopper 88, cheetah 146, humanoid 303).
+
+On a CPU a model with contacts (:func:`contact_rich`, ``MANY_ROWS`` rows or
+more) gains little from batching its rollouts: a step costs far more than
+the per-operation overhead that batching amortises, while a batched program
+of the contact-rich step traces and compiles for much longer (``vmap`` turns
+the constraint solver's loops into masked ones). Two defaults follow:
+
+- POD-iLQR runs its sysid batch through the line search's rollout program in
+  several calls (``sim.shared``);
+- the model-based reference computes its Jacobians and its line-search
+  candidates one at a time (:func:`one_at_a_time`): ``lax.map`` over single,
+  unbatched JVPs and rollouts instead of one ``vmap`` over all.
+"""
+
+from __future__ import annotations
+
+import jax
+
+from .rollout import make_data
+
+MANY_ROWS = 32  # constraint rows from which a model counts as contact-rich
+
+
+def constraint_rows(model) -> int:
+    """The constraint rows MJX's step carries for ``model`` (a fixed count in
+    MJX: every possible contact, limit, friction loss and equality row), read
+    from the shapes of its data without touching a device; 0 where this MJX
+    or implementation does not say."""
+    d = jax.eval_shape(make_data, model)
+    efc_J = getattr(getattr(d, "_impl", d), "efc_J", None)
+    return 0 if efc_J is None else int(efc_J.shape[0])
+
+
+def contact_rich(model) -> bool:
+    """Whether ``model``'s MJX step carries at least ``MANY_ROWS`` constraint rows."""
+    return constraint_rows(model) >= MANY_ROWS
+
+
+def one_at_a_time(model) -> bool:
+    """Whether the model-based reference runs its MJX programs one JVP and one
+    rollout at a time (module docstring): on a single CPU device, for a
+    contact-rich model. On a GPU, or sharded over devices, it batches."""
+    return jax.default_backend() == "cpu" and jax.device_count() == 1 and contact_rich(model)
