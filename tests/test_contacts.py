@@ -48,19 +48,12 @@ def _hopper():
     return load_task(os.path.join(gallery, "gym_hopper_balance.toml"))
 
 
-def _exact_of(env):
+def _exact_of(monkeypatch, env):
     """The identification ``solve_model_based`` sets up for ``env`` (nothing compiles)."""
     captured = {}
-
-    def run(ctx, *args):
-        captured["identify"] = ctx.identify
-
-    original = solver.run
-    solver.run = run
-    try:
+    with monkeypatch.context() as patch:
+        patch.setattr(solver, "run", lambda ctx, *args: captured.setdefault("identify", ctx.identify))
         solver.solve_model_based(env)
-    finally:
-        solver.run = original
     return captured["identify"]
 
 
@@ -68,11 +61,11 @@ def test_only_a_contact_rich_model_on_one_cpu_runs_its_jacobians_one_at_a_time(m
     pendulum = pj.make_task("pendulum-full")
     assert contacts.constraint_rows(pendulum.data.model) == 0
     assert not contacts.one_at_a_time(pendulum.data.model)
-    assert _exact_of(pendulum).one_at_a_time is False
+    assert _exact_of(monkeypatch, pendulum).one_at_a_time is False
     hopper = _hopper()
     assert contacts.contact_rich(hopper.data.model)
     assert contacts.one_at_a_time(hopper.data.model)
-    assert _exact_of(hopper).one_at_a_time is True
+    assert _exact_of(monkeypatch, hopper).one_at_a_time is True
     # On a GPU the batch is what the device is for.
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert not contacts.one_at_a_time(hopper.data.model)

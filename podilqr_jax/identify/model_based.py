@@ -48,10 +48,11 @@ def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar, one_at_a_time: bool = 
     #
     # On a contact-rich model the batch costs more than it saves: vmap turns
     # the constraint solver's loops into masked ones, and the batched JVP of
-    # Gymnasium's hopper traces for 3x and compiles for 1.4x as long as one
-    # unbatched JVP in a loop, which runs no slower there (dm_control's
-    # finger: 2x, 1.1x, and the loop runs 2-3x faster). Without contacts the
-    # batch runs 2-4x faster, so it stays (docs/performance.md).
+    # Gymnasium's hopper traces for 3-4x and compiles for 1.4-1.6x as long as
+    # one unbatched JVP in a loop, which takes 1.0-1.35x the batch's time
+    # there (dm_control's finger: 2-2.6x, 1.05-1.45x, and the loop runs 2-3x
+    # faster). Without contacts the batch runs 2-4x faster, so it stays
+    # (docs/performance.md).
     T, nx, nu = u_bar.shape[0], dims.nx, dims.nu
     n = nx + nu
     x_rep = jnp.repeat(x_bar[:-1], n, axis=0)

@@ -10,16 +10,18 @@ Gymnasium hopper 38, dm_control's finger 93; from dm_control's suite also
 walker 62, ball-in-cup 65, hopper 88, cheetah 146, humanoid 303).
 
 On a CPU a model with contacts (:func:`contact_rich`, ``MANY_ROWS`` rows or
-more) gains little from batching its rollouts: a step costs far more than
-the per-operation overhead that batching amortises, while a batched program
-of the contact-rich step traces and compiles for much longer (``vmap`` turns
+more) gains little from batching: a step costs far more than the
+per-operation overhead that batching amortises, while a batched program of
+the contact-rich step traces and compiles for much longer (``vmap`` turns
 the constraint solver's loops into masked ones). Two defaults follow:
 
 - POD-iLQR runs its sysid batch through the line search's rollout program in
   several calls (``sim.shared``);
-- the model-based reference computes its Jacobians and its line-search
-  candidates one at a time (:func:`one_at_a_time`): ``lax.map`` over single,
-  unbatched JVPs and rollouts instead of one ``vmap`` over all.
+- the model-based reference computes its Jacobians one JVP at a time
+  (:func:`one_at_a_time`): a ``lax.map`` of one unbatched JVP instead of one
+  ``vmap`` of all (``model_based.linearise``). Its line search stays one
+  batch: one candidate at a time ran 1.4x slower on the hopper
+  (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ def contact_rich(model) -> bool:
 
 
 def one_at_a_time(model) -> bool:
-    """Whether the model-based reference runs its MJX programs one JVP and one
-    rollout at a time (module docstring): on a single CPU device, for a
-    contact-rich model. On a GPU, or sharded over devices, it batches."""
+    """Whether the model-based reference computes its Jacobians one JVP at a
+    time (module docstring): on a single CPU device, for a contact-rich
+    model. On a GPU, or sharded over devices, it batches them."""
     return jax.default_backend() == "cpu" and jax.device_count() == 1 and contact_rich(model)
