@@ -43,9 +43,14 @@ def constraint_rows(model) -> int:
     return 0 if efc_J is None else int(efc_J.shape[0])
 
 
+def many_rows(rows: int) -> bool:
+    """Whether ``rows`` constraint rows make a model contact-rich (at least ``MANY_ROWS``)."""
+    return rows >= MANY_ROWS
+
+
 def contact_rich(model) -> bool:
     """Whether ``model``'s MJX step carries at least ``MANY_ROWS`` constraint rows."""
-    return constraint_rows(model) >= MANY_ROWS
+    return many_rows(constraint_rows(model))
 
 
 def one_at_a_time(model) -> bool:

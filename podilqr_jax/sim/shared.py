@@ -74,15 +74,8 @@ import jax.numpy as jnp
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
 from .cache import switched_off
-from .contacts import MANY_ROWS
-from .rollout import (
-    Policy,
-    Trajectory,
-    average_repeats,
-    injected_perturbations,
-    shard_batch,
-    simulate,
-)
+from .contacts import many_rows
+from .rollout import Policy, Trajectory, average_repeats, injected_perturbations, shard_batch, simulate
 from .stages import stage
 
 ENV_SWITCH = "PODILQR_SHARED_ROLLOUTS"
@@ -111,7 +104,7 @@ def width(
         return ls_rollouts if calls <= MAX_GROUPS else None
     # By itself: one call, or several on a contact model, padded by at most a
     # quarter in all (a padding rollout costs what a sysid rollout does).
-    most = MAX_GROUPS if rows >= MANY_ROWS else 1
+    most = MAX_GROUPS if many_rows(rows) else 1
     return ls_rollouts if calls <= most and calls * ls_rollouts <= 1.25 * batch else None
 
 
