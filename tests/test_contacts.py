@@ -1,5 +1,7 @@
 """Contact-rich models (sim/contacts.py): the model-based reference's Jacobians
-one JVP at a time, equal to the batched ones on a model with an active contact."""
+one column at a time, equal to the batched ones on a model with an active
+contact, and by central differences, equal to forward mode where that is
+finite and finite where it is not (the elliptic cone)."""
 
 from __future__ import annotations
 
@@ -38,6 +40,11 @@ HORIZON = 6
 # otherwise by XLA. Measured on this arm: 7.5e-14 at a largest entry of 24
 # (3e-15 relative; Gymnasium's hopper: 5.7e-14 at 43). Required: 1e-12 relative.
 LOOP_VS_BATCH_REL = 1e-12
+# Central differences (h = eps^(1/3)) against forward mode: truncation h^2 and
+# round-off eps / h, both near 1e-10 of the entries. Measured: the resting arm
+# 9.6e-9 at a largest entry of 24 (4e-10 relative), the cart-pole and the
+# pendulum 1.7e-10 at 1.5 and 9.4e-11 at 1.9. Required: 1e-7 relative.
+DIFFERENCES_VS_EXACT_REL = 1e-7
 
 
 def _hopper():
@@ -48,12 +55,12 @@ def _hopper():
     return load_task(os.path.join(gallery, "gym_hopper_balance.toml"))
 
 
-def _exact_of(monkeypatch, env):
+def _exact_of(monkeypatch, env, cfg=None):
     """The identification ``solve_model_based`` sets up for ``env`` (nothing compiles)."""
     captured = {}
     with monkeypatch.context() as patch:
         patch.setattr(solver, "run", lambda ctx, *args: captured.setdefault("identify", ctx.identify))
-        solver.solve_model_based(env)
+        solver.solve_model_based(env, cfg)
     return captured["identify"]
 
 
@@ -71,9 +78,10 @@ def test_only_a_contact_rich_model_on_one_cpu_runs_its_jacobians_one_at_a_time(m
     assert not contacts.one_at_a_time(hopper.data.model)
 
 
-def test_the_jacobians_one_at_a_time_equal_the_batched_ones_at_an_active_contact(tmp_path):
-    path = tmp_path / "resting_arm.xml"
-    path.write_text(RESTING_ARM)
+def _resting_arm(tmp_path, cone="pyramidal"):
+    """The arm with its foot on the floor, its task arrays on the device and a nominal of HORIZON steps."""
+    path = tmp_path / f"resting_arm_{cone}.xml"
+    path.write_text(RESTING_ARM.replace('cone="pyramidal"', f'cone="{cone}"'))
     env = pj.Env.from_xml(path, horizon=HORIZON, x0={"qpos": RESTING, "qvel": [0.0, 0.0]})
     probe = mujoco.MjData(env.mj_model)
     probe.qpos[:] = RESTING
@@ -81,21 +89,83 @@ def test_the_jacobians_one_at_a_time_equal_the_batched_ones_at_an_active_contact
     assert probe.ncon >= 1  # the foot touches the floor
     assert contacts.constraint_rows(env.data.model) < contacts.MANY_ROWS  # the solver would batch: called directly
     dims, data = env.dims, on_device(env.data)
-    u_bar = jnp.asarray(np.linspace(-0.5, 0.5, HORIZON * dims.nu).reshape(HORIZON, dims.nu))
+    return dims, data, *_nominal(dims, data, np.linspace(-0.5, 0.5, HORIZON * dims.nu).reshape(HORIZON, dims.nu))
+
+
+def _nominal(dims, data, u_bar):
+    """(x_bar, u_bar): MJX's step from the task's start under the controls ``u_bar``."""
+    u_bar = jnp.asarray(u_bar)
     d0 = make_data(data.model)
     xs = [data.x0]
-    for t in range(HORIZON):
+    for t in range(u_bar.shape[0]):
         xs.append(state_of(physics_step(dims, data.model, with_state(dims, d0, xs[-1]), u_bar[t])))
-    x_bar = jnp.stack(xs)
-    batched = pj.linearise(dims, data, x_bar, u_bar)
-    looped = pj.linearise(dims, data, x_bar, u_bar, one_at_a_time=True)
-    for a, b in ((batched.A, looped.A), (batched.B, looped.B)):
+    return jnp.stack(xs), u_bar
+
+
+def _assert_close(model, reference, rel):
+    for a, b in ((reference.A, model.A), (reference.B, model.B)):
         a, b = np.asarray(a), np.asarray(b)
         assert a.shape == b.shape and np.all(np.isfinite(a)) and np.all(np.isfinite(b))
-        assert np.max(np.abs(a - b)) <= LOOP_VS_BATCH_REL * np.max(np.abs(a))
+        assert np.max(np.abs(a - b)) <= rel * np.max(np.abs(a))
+
+
+def test_the_jacobians_one_at_a_time_equal_the_batched_ones_at_an_active_contact(tmp_path):
+    dims, data, x_bar, u_bar = _resting_arm(tmp_path)
+    batched = pj.linearise(dims, data, x_bar, u_bar)
+    looped = pj.linearise(dims, data, x_bar, u_bar, one_at_a_time=True)
+    _assert_close(looped, batched, LOOP_VS_BATCH_REL)
     # The contact is in the Jacobian: lifted off the floor (the mass matrix
     # depends on the hinge angle only), the lift's velocity answers the lift's
     # force otherwise.
     lifted = pj.linearise(dims, data, x_bar.at[:, 0].add(0.3), u_bar, one_at_a_time=True)
     on_floor, in_air = float(looped.B[0, 2, 0]), float(lifted.B[0, 2, 0])
     assert abs(on_floor - in_air) > 0.1 * abs(in_air)
+
+
+def test_auto_linearises_a_contact_rich_model_by_central_differences(monkeypatch):
+    pendulum, hopper = pj.make_task("pendulum-full"), _hopper()
+    assert contacts.jacobian("auto", pendulum.data.model) == "exact"
+    assert contacts.jacobian("auto", hopper.data.model) == "differences"
+    assert _exact_of(monkeypatch, pendulum).jacobian == "exact"
+    assert _exact_of(monkeypatch, hopper).jacobian == "differences"
+    # The setting forces either, whatever the model.
+    for setting in ("exact", "differences"):
+        assert contacts.jacobian(setting, pendulum.data.model) == setting
+        assert _exact_of(monkeypatch, hopper, pj.default_config(hopper, jacobian=setting)).jacobian == setting
+    with pytest.raises(pj.ConfigError, match="Unknown `jacobian` 'fd'; choose one of auto, exact, differences"):
+        solver.solve_model_based(pendulum, pj.default_config(pendulum, jacobian="fd"))
+
+
+@pytest.mark.parametrize("task", ["cartpole-full", "pendulum-full"])
+def test_central_differences_equal_forward_mode_on_a_smooth_model(task):
+    view = pj.make_task(task).full_state_view()
+    dims, data = view.dims, on_device(view.data)
+    rng = np.random.default_rng(0)
+    x_bar, u_bar = _nominal(dims, data, rng.uniform(-0.5, 0.5, (dims.horizon, dims.nu)))
+    exact = pj.linearise(dims, data, x_bar, u_bar)
+    _assert_close(pj.linearise(dims, data, x_bar, u_bar, jacobian="differences"), exact, DIFFERENCES_VS_EXACT_REL)
+
+
+def test_central_differences_are_finite_where_the_elliptic_cone_makes_forward_mode_nan(tmp_path):
+    dims, data, x_bar, u_bar = _resting_arm(tmp_path)
+    exact = pj.linearise(dims, data, x_bar, u_bar)
+    differences = pj.linearise(dims, data, x_bar, u_bar, jacobian="differences")
+    _assert_close(differences, exact, DIFFERENCES_VS_EXACT_REL)  # at an active contact, pyramidal cone
+    _assert_close(pj.linearise(dims, data, x_bar, u_bar, True, "differences"), differences, LOOP_VS_BATCH_REL)
+    dims, data, x_bar, u_bar = _resting_arm(tmp_path, cone="elliptic")
+    assert not np.all(np.isfinite(np.asarray(pj.linearise(dims, data, x_bar, u_bar).A)))
+    differences = pj.linearise(dims, data, x_bar, u_bar, jacobian="differences")
+    assert np.all(np.isfinite(np.asarray(differences.A))) and np.all(np.isfinite(np.asarray(differences.B)))
+    # The contact is in them: the lift's velocity answers the lift's force otherwise in the air.
+    lifted = pj.linearise(dims, data, x_bar.at[:, 0].add(0.3), u_bar, jacobian="differences")
+    assert abs(float(differences.B[0, 2, 0]) - float(lifted.B[0, 2, 0])) > 0.1 * abs(float(lifted.B[0, 2, 0]))
+
+
+def test_a_checkpoint_fingerprint_leaves_out_jacobian_at_its_default():
+    from podilqr_jax.ilqr.checkpoint import fingerprint
+
+    env = pj.make_task("pendulum-full")
+    auto = fingerprint("model-based", env, env.dims, pj.default_config(env))["config"]
+    exact = fingerprint("model-based", env, env.dims, pj.default_config(env, jacobian="exact"))["config"]
+    assert "jacobian" not in auto and exact["jacobian"] == "exact"
+    assert {k: v for k, v in exact.items() if k != "jacobian"} == auto

@@ -135,20 +135,23 @@ class DataBased:
 
 @dataclasses.dataclass(frozen=True)
 class Exact:
-    """The model-based reference's identification: the exact linearisation
-    (``model_based.linearise``) of the full-state dynamics; ``hint`` says what
-    in the model may make it non-finite; ``one_at_a_time``: the contact-rich
-    model's loop of single JVPs."""
+    """The model-based reference's identification: the linearisation
+    (``model_based.linearise``) of the full-state dynamics, ``jacobian`` (one
+    of ``model_based.JACOBIANS``) as ``sim.contacts.jacobian`` resolved the
+    setting; ``hint`` says what in the model may make the exact one
+    non-finite; ``one_at_a_time``: the contact-rich model's loop of single
+    columns."""
 
     dims: EnvDims
     data: EnvData
     hint: str = ""
-    one_at_a_time: bool = False  # the JVPs in a loop, not a batch (``sim.contacts.one_at_a_time``)
+    one_at_a_time: bool = False  # the columns in a loop, not a batch (``sim.contacts.one_at_a_time``)
+    jacobian: str = "exact"
 
     def __call__(self, key: jax.Array, nominal, gains, sigma: float, experiment: Experiment) -> Identified:
         t0 = time.perf_counter()
-        model = linearise(self.dims, self.data, nominal.x_bar, nominal.u_bar, self.one_at_a_time)
-        stop = exact_model_stop(model, self.hint)
+        model = linearise(self.dims, self.data, nominal.x_bar, nominal.u_bar, self.one_at_a_time, self.jacobian)
+        stop = exact_model_stop(model, self.hint if self.jacobian == "exact" else "", self.jacobian)
         return Identified(model, stop, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}, None)
 
 

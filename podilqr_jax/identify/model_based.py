@@ -1,10 +1,18 @@
-"""Exact linearisation of the MJX dynamics (the model-based reference).
+"""Linearisation of the MJX dynamics (the model-based reference).
 
 The control-step map x_{t+1} = f(x_t, u_t) (``substeps`` MuJoCo steps) is
-differentiated in forward mode (one JVP per column) at every nominal (x_bar_t, u_bar_t), giving
-the true LTV model A_t = df/dx, B_t = df/du on the full state. The model-based
-iLQR runs the same backward pass and line search on it; it is the reference
-optimum for tests, benchmarks and the noisy studies.
+linearised at every nominal (x_bar_t, u_bar_t), giving the LTV model
+A_t = df/dx, B_t = df/du on the full state, one column per state or control
+direction, in one of two ways (``JACOBIANS``):
+
+- ``exact``: forward mode, one JVP through ``mjx.step`` per column;
+- ``differences``: central differences of the same step, (f(. + h e_j) -
+  f(. - h e_j)) / 2h with h = eps^(1/3) of the dtype (6.1e-6 in float64),
+  the step size that balances the truncation error (h^2) against round-off
+  (eps / h); MuJoCo's own ``mjd_transitionFD`` differentiates so.
+
+The model-based iLQR runs the same backward pass and line search on it; it is
+the reference optimum for tests, benchmarks and the noisy studies.
 
 Shapes: x_bar [T+1, nx], u_bar [T, nu]; A [T, nx, nx], B [T, nx, nu].
 """
@@ -21,24 +29,38 @@ from ..sim.stages import stage
 from ..task.env import EnvData, EnvDims
 from .sysid import LinearModel
 
+JACOBIANS = ("exact", "differences")
+"""How :func:`linearise` computes the Jacobians (module docstring)."""
 
-@stage(static_argnames=("dims", "one_at_a_time"), outputs=(LinearModel,))
-def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar, one_at_a_time: bool = False) -> LinearModel:
+
+@stage(static_argnames=("dims", "one_at_a_time", "jacobian"), outputs=(LinearModel,))
+def linearise(
+    dims: EnvDims, data: EnvData, x_bar, u_bar, one_at_a_time: bool = False, jacobian: str = "exact"
+) -> LinearModel:
     """(A_t, B_t) = Jacobians of the control-step map along (x_bar, u_bar).
 
-    ``one_at_a_time``: the T (nx + nu) JVPs run as a ``lax.map`` of one
-    unbatched JVP instead of one ``vmap`` of all; the solver's choice for a
-    contact-rich model on a CPU (``sim.contacts.one_at_a_time``)."""
+    ``jacobian``: ``exact`` (forward mode) or ``differences`` (central
+    differences), module docstring; the solver's ``auto`` picks differences
+    on a contact-rich model (``sim.contacts.jacobian``).
+    ``one_at_a_time``: the T (nx + nu) columns run as a ``lax.map`` of one
+    unbatched JVP (or pair of steps) instead of one ``vmap`` of all; the
+    solver's choice for a contact-rich model on a CPU
+    (``sim.contacts.one_at_a_time``)."""
+    if jacobian not in JACOBIANS:
+        raise ValueError(f"`jacobian` must be one of {', '.join(JACOBIANS)}; got {jacobian!r}.")
     d0 = mjx.make_data(data.model)
 
     def f(x, u):
         return state_of(physics_step(dims, data.model, with_state(dims, d0, x), u))
 
-    # A control on its ctrlrange bound is moved inside by 1e-9 of the range:
-    # MuJoCo's clamp has no derivative there, and B must be the interior one
-    # (the backward pass's box QP handles the bound).
+    # A control on its ctrlrange bound is moved inside by 1e-9 of the range
+    # (by the difference step h for differences, so that neither side of the
+    # difference is clamped): MuJoCo's clamp has no derivative there, and B
+    # must be the interior one (the backward pass's box QP handles the bound).
+    h = float(jnp.finfo(x_bar.dtype).eps) ** (1.0 / 3.0)
     span = jnp.where(jnp.isfinite(data.u_high - data.u_low), data.u_high - data.u_low, 0.0)
-    u_lin = jnp.clip(u_bar, data.u_low + 1e-9 * span, data.u_high - 1e-9 * span)
+    inset = jnp.minimum(jnp.maximum(1e-9 * span, h), 0.5 * span) if jacobian == "differences" else 1e-9 * span
+    u_lin = jnp.clip(u_bar, data.u_low + inset, data.u_high - inset)
     # Column j of [A_t B_t] is the JVP of f at (x_bar_t, u_t) along the unit
     # vector e_j: one vmap over the T (nx + nu) pairs (t, j) of a single JVP.
     # The same columns as ``vmap(jacfwd(f))`` to round-off (the model-based
@@ -62,7 +84,15 @@ def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar, one_at_a_time: bool = 
     def column(x, u, e_j):
         return jax.jvp(f, (x, u), (e_j[:nx], e_j[nx:]))[1]
 
-    if one_at_a_time:
+    if jacobian == "differences":
+        # Both sides of every column as one batch of 2 T (nx + nu) steps: one
+        # copy of the step in the program (the forward-mode program holds the
+        # step and its tangent; docs/performance.md).
+        x_pm = jnp.concatenate([x_rep + h * e[:, :nx], x_rep - h * e[:, :nx]])
+        u_pm = jnp.concatenate([u_rep + h * e[:, nx:], u_rep - h * e[:, nx:]])
+        x_next = jax.lax.map(lambda a: f(*a), (x_pm, u_pm)) if one_at_a_time else jax.vmap(f)(x_pm, u_pm)
+        cols = (x_next[: T * n] - x_next[T * n :]) / (2.0 * h)
+    elif one_at_a_time:
         cols = jax.lax.map(lambda a: column(*a), (x_rep, u_rep, e))
     else:
         cols = jax.vmap(column)(x_rep, u_rep, e)
@@ -76,6 +106,7 @@ def nonfinite_hint(mj_model: mujoco.MjModel) -> str:
     if mj_model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC:
         return (
             " (the model uses the elliptic friction cone, whose forward-mode derivative in MJX is NaN at an "
-            'active contact; with <option cone="pyramidal"/> it is finite. POD-iLQR itself needs no derivative)'
+            'active contact; with <option cone="pyramidal"/> it is finite, and so is jacobian="differences" '
+            "(central differences of the step). POD-iLQR itself needs no derivative)"
         )
     return ""

@@ -45,6 +45,9 @@ _FORMAT_2_NAMES = {
     "grad_history": "grad_norm_history",
 }
 _RESUMABLE_CHANGES = ("max_iterations",)
+# Settings added after format 3, left out of the fingerprint at their default,
+# so that a checkpoint written before they existed still resumes.
+_LATER_DEFAULTS = {"jacobian": "auto"}
 
 
 def fingerprint(method: str, env, dims, cfg) -> dict[str, Any]:
@@ -57,7 +60,11 @@ def fingerprint(method: str, env, dims, cfg) -> dict[str, Any]:
     for a in data.noise:
         digest.update(np.ascontiguousarray(np.asarray(a, dtype=float)).tobytes())
     digest.update(str(int(data.goal_step)).encode())
-    config = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in _RESUMABLE_CHANGES}
+    config = {
+        k: v
+        for k, v in dataclasses.asdict(cfg).items()
+        if k not in _RESUMABLE_CHANGES and not (k in _LATER_DEFAULTS and v == _LATER_DEFAULTS[k])
+    }
     return {
         "method": method,
         "task": env.name,

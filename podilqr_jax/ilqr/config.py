@@ -24,6 +24,13 @@ MJX 3.17 also has ``cpp`` (MuJoCo's C engine as a JAX call), which its
 ``make_data`` ties to host-side references that a jitted, vmapped rollout
 cannot carry; it is not offered."""
 
+JACOBIAN_SETTINGS = ("auto", "exact", "differences")
+"""How the model-based reference linearises the dynamics
+(``SolverConfig.jacobian``, ``model_based.linearise``): ``exact`` (forward
+mode through MJX's step), ``differences`` (central differences of the same
+step) or ``auto`` (the default: differences on a contact-rich model, exact
+otherwise; ``sim.contacts.jacobian``)."""
+
 SIGMA_SCALES = ("actuator", "absolute")
 """The units of ``SolverConfig.sigma``: each actuator's half ctrlrange where it
 is limited (``actuator``), or one sigma for every actuator (``absolute``)."""
@@ -151,6 +158,15 @@ class SolverConfig:
       impl: MJX implementation of the solve's rollouts, one of ``IMPLS``
         (``jax`` or ``warp``). The model-based reference differentiates
         through MJX and always runs ``jax``.
+      jacobian: how the model-based reference linearises the dynamics, one of
+        ``JACOBIAN_SETTINGS``: ``auto`` (the default) takes central
+        differences of MJX's step on a contact-rich model (at least
+        ``sim.contacts.MANY_ROWS`` constraint rows) and the exact
+        forward-mode derivative otherwise; ``exact`` or ``differences``
+        force one. At an active contact the forward-mode derivative is NaN
+        under the elliptic friction cone, and its program compiles for about
+        twice as long (docs/performance.md).
+        POD-iLQR does not read it.
     """
 
     q: Optional[int] = None
@@ -179,6 +195,7 @@ class SolverConfig:
     memory_budget_mb: float = 2048.0
     rollout_chunk: Optional[int] = None
     impl: str = "jax"
+    jacobian: str = "auto"
     reidentify: int = 2
     mirrored: bool = False
     escalate: bool = True
@@ -236,6 +253,11 @@ class SolverConfig:
                         f"set variant='averaged' or drop {name}."
                     )
         check_impl(self.impl)
+        if self.jacobian not in JACOBIAN_SETTINGS:
+            raise ConfigError(
+                f"Unknown `jacobian` {self.jacobian!r}; choose one of {', '.join(JACOBIAN_SETTINGS)} (the model-based "
+                "reference's linearisation: forward mode, central differences, or auto by the model)."
+            )
         for name in ("mirrored", "cap_rank"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"`{name}` must be true or false; got {getattr(self, name)!r}.")

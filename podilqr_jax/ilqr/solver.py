@@ -95,18 +95,21 @@ def solve_model_based(
     checkpoint_every: int = 10,
     resume: Optional[str | os.PathLike] = None,
 ) -> Result:
-    """The model-based reference: iLQR with exact MJX Jacobians on the full state.
+    """The model-based reference: iLQR with MJX's Jacobians on the full state.
 
     Same task, cost, backward pass, line search and stopping rules as
-    :func:`solve`; the identification is replaced by forward-mode derivatives through
-    ``mjx.step``. The data-based settings (``q``, ``n_s``, ``sigma``) are unused.
+    :func:`solve`; the identification is replaced by the linearisation of
+    ``mjx.step``: forward-mode derivatives, or central differences of the step
+    on a contact-rich model (``cfg.jacobian``). The data-based settings
+    (``q``, ``n_s``, ``sigma``) are unused.
     """
     cfg = default_config(env) if cfg is None else cfg
     cfg.validate(env, data_based=False)
     run_options = _run_options(checkpoint, checkpoint_every, resume)
     view = env.full_state_view()
     dims, data = view.dims, on_device(view.data)
-    identify = Exact(dims, data, nonfinite_hint(env.mj_model), contacts.one_at_a_time(data.model))
+    jacobian = contacts.jacobian(cfg.jacobian, data.model)
+    identify = Exact(dims, data, nonfinite_hint(env.mj_model), contacts.one_at_a_time(data.model), jacobian)
     ctx = _context("model-based", env, dims, data, cfg, 1, identify, False, 1)
     return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
 

@@ -60,9 +60,13 @@ def identification_stop(n_bad: int, n_s: int, needed: int, model, target_rms, si
     return None
 
 
-def exact_model_stop(model, hint: str) -> Optional[Stop]:
-    """The exact linearisation is not finite (``hint``: what in the model may cause it)."""
-    return None if model_is_finite(model) else Stop(Status.NONFINITE, "the exact linearisation is not finite" + hint)
+def exact_model_stop(model, hint: str, jacobian: str = "exact") -> Optional[Stop]:
+    """The model-based linearisation (``jacobian``: ``exact`` or
+    ``differences``) is not finite (``hint``: what in the model may cause it)."""
+    if model_is_finite(model):
+        return None
+    what = "exact linearisation" if jacobian == "exact" else "linearisation by central differences"
+    return Stop(Status.NONFINITE, f"the {what} is not finite" + hint)
 
 
 def model_is_finite(model) -> bool:

@@ -13,15 +13,21 @@ On a CPU a model with contacts (:func:`contact_rich`, ``MANY_ROWS`` rows or
 more) gains little from batching: a step costs far more than the
 per-operation overhead that batching amortises, while a batched program of
 the contact-rich step traces and compiles for much longer (``vmap`` turns
-the constraint solver's loops into masked ones). Two defaults follow:
+the constraint solver's loops into masked ones). Three defaults follow:
 
 - POD-iLQR runs its sysid batch through the line search's rollout program in
   several calls (``sim.shared``);
-- the model-based reference computes its Jacobians one JVP at a time
-  (:func:`one_at_a_time`): a ``lax.map`` of one unbatched JVP instead of one
-  ``vmap`` of all (``model_based.linearise``). Its line search stays one
-  batch: one candidate at a time ran 1.4x slower on the hopper
-  (docs/performance.md).
+- the model-based reference linearises by central differences of the step
+  (:func:`jacobian`, unless the solve's ``jacobian`` setting says
+  otherwise): MJX's forward-mode derivative at an active contact is NaN
+  under the elliptic friction cone (dm_control's finger), and its program,
+  the step with its tangent, took 1.9-2.1x as long in XLA's compiler as
+  the differences' one copy of the step, whose trace the line search's
+  program shares (docs/performance.md);
+- it computes those columns one at a time (:func:`one_at_a_time`): a
+  ``lax.map`` of one unbatched step (or JVP) instead of one ``vmap`` of all
+  (``model_based.linearise``). Its line search stays one batch: one
+  candidate at a time ran 1.4x slower on the hopper (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -53,8 +59,17 @@ def contact_rich(model) -> bool:
     return many_rows(constraint_rows(model))
 
 
+def jacobian(setting: str, model) -> str:
+    """The model-based reference's linearisation (``model_based.JACOBIANS``)
+    for the solve's ``jacobian`` setting: ``auto`` is ``differences`` on a
+    contact-rich model and ``exact`` otherwise (module docstring)."""
+    if setting != "auto":
+        return setting
+    return "differences" if contact_rich(model) else "exact"
+
+
 def one_at_a_time(model) -> bool:
-    """Whether the model-based reference computes its Jacobians one JVP at a
-    time (module docstring): on a single CPU device, for a contact-rich
+    """Whether the model-based reference computes its Jacobians one column at
+    a time (module docstring): on a single CPU device, for a contact-rich
     model. On a GPU, or sharded over devices, it batches them."""
     return jax.default_backend() == "cpu" and jax.device_count() == 1 and contact_rich(model)
