@@ -414,15 +414,22 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
     main_result = results[0]
     payload = main_result.to_dict()
     if len(results) > 1 and results[1].status != pj.Status.INTERRUPTED:
-        # Under noise the comparison is the policy's true (noiseless, closed-loop) cost.
-        payload["model_based_cost"] = results[1].final_cost
-        payload["ratio_to_model_based"] = main_result.final_true_cost / results[1].final_cost
-        payload["model_based"] = {k: v for k, v in results[1].to_dict().items() if k not in ("K", "k")}
-        what = "true cost (noiseless, closed loop)" if main_result.noisy else "cost"
-        print(
-            f"POD-iLQR {what} / model-based cost: {payload['ratio_to_model_based']:.6f}",
-            file=sys.stderr,
-        )
+        reference = results[1]
+        payload["model_based_cost"] = reference.final_cost
+        payload["model_based"] = {k: v for k, v in reference.to_dict().items() if k not in ("K", "k")}
+        if reference.status in (pj.Status.NONFINITE, pj.Status.NO_RESPONSE):
+            # A reference that could not linearise the model is no optimum: no ratio against it.
+            payload["ratio_to_model_based"] = None
+            print(
+                f"no ratio: the model-based reference stopped {reference.status} ({reference.message}), "
+                "so its cost is not an optimum to compare with",
+                file=sys.stderr,
+            )
+        else:
+            # Under noise the comparison is the policy's true (noiseless, closed-loop) cost.
+            payload["ratio_to_model_based"] = main_result.final_true_cost / reference.final_cost
+            what = "true cost (noiseless, closed loop)" if main_result.noisy else "cost"
+            print(f"POD-iLQR {what} / model-based cost: {payload['ratio_to_model_based']:.6f}", file=sys.stderr)
     from .ilqr.result import write_json_atomic
 
     write_json_atomic(args.out, payload)
@@ -486,7 +493,7 @@ class _Progress:
             return
         stats = (
             f"it {info.iteration:4d}  cost {info.cost:12.6g}  alpha {info.alpha:6.3g}  "
-            f"mu {info.mu:8.2g}  |g| {info.grad_norm:8.2g}  {info.rollouts_per_s:9.0f} rollouts/s"
+            f"mu {info.mu:8.2g}  |g| {info.grad_norm:8.2g}  {info.rollouts_per_s:9.0f} rollouts/s ({info.engine})"
         )
         if info.sigma == info.sigma:
             stats += f"  sigma {info.sigma:7.2g}"

@@ -147,7 +147,7 @@ def test_bench_tiny_runs_every_section_from_the_installed_package(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "Traceback" not in proc.stderr
     report = json.loads((out / "bench.json").read_text())
-    sections = {"grids", "baselines", "tasks", "memory", "devices", "cache", "ls_memory"}
+    sections = {"grids", "baselines", "tasks", "memory", "devices", "cache", "ls_memory", "engines"}
     assert {"machine", "settings"} | sections <= set(report)
     cells = report["grids"]["pendulum-full"]
     assert [(c["n_s"], c["n_avg"]) for c in cells] == [(8, 1), (8, 2)]
@@ -162,6 +162,11 @@ def test_bench_tiny_runs_every_section_from_the_installed_package(tmp_path):
     assert report["cache"]["same_cost_warm_as_cold"]
     rows = report["ls_memory"]["rows"]
     assert [row["chunk"] for row in rows] == [None, 44] and rows[1]["max_rel_cost_diff_vs_first"] < 1e-9
+    speeds = report["engines"]["speeds"]
+    assert [row["task"] for row in speeds] == ["pendulum-full"]  # run outside a checkout: no task files found
+    assert speeds[0]["native"]["steps_per_s"] > 0 and speeds[0]["mjx"]["steps_per_s"] > 0
+    assert set(report["engines"]["time_to_cost"][0]) >= {"mjx_s", "native_s", "target_cost"}
+    assert "native steps/s" in proc.stdout
     for name in ("time_per_iteration.png", "phases.png", "throughput.png"):
         assert (out / name).stat().st_size > 0
     assert "| pendulum-full |" in proc.stdout

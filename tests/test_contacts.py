@@ -56,7 +56,10 @@ def _hopper():
 
 
 def _exact_of(monkeypatch, env, cfg=None):
-    """The identification ``solve_model_based`` sets up for ``env`` (nothing compiles)."""
+    """The identification ``solve_model_based`` sets up for ``env`` on MJX (nothing compiles):
+    these tests are of MJX's contact machinery, which ``engine="auto"`` leaves for the
+    native engine on a contact model on a CPU (tests/test_native.py)."""
+    cfg = pj.default_config(env, engine="mjx") if cfg is None else cfg
     captured = {}
     with monkeypatch.context() as patch:
         patch.setattr(solver, "run", lambda ctx, *args: captured.setdefault("identify", ctx.identify))
@@ -131,7 +134,8 @@ def test_auto_linearises_a_contact_rich_model_by_central_differences(monkeypatch
     # The setting forces either, whatever the model.
     for setting in ("exact", "differences"):
         assert contacts.jacobian(setting, pendulum.data.model) == setting
-        assert _exact_of(monkeypatch, hopper, pj.default_config(hopper, jacobian=setting)).jacobian == setting
+        cfg = pj.default_config(hopper, engine="mjx", jacobian=setting)
+        assert _exact_of(monkeypatch, hopper, cfg).jacobian == setting
     with pytest.raises(pj.ConfigError, match="Unknown `jacobian` 'fd'; choose one of auto, exact, differences"):
         solver.solve_model_based(pendulum, pj.default_config(pendulum, jacobian="fd"))
 

@@ -22,9 +22,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import mujoco
-from mujoco import mjx
 
-from ..sim.rollout import physics_step, state_of, with_state
+from ..sim.rollout import physics_step, start_data, state_of, with_state
 from ..sim.stages import stage
 from ..task.env import EnvData, EnvDims
 from .sysid import LinearModel
@@ -48,7 +47,7 @@ def linearise(
     (``sim.contacts.one_at_a_time``)."""
     if jacobian not in JACOBIANS:
         raise ValueError(f"`jacobian` must be one of {', '.join(JACOBIANS)}; got {jacobian!r}.")
-    d0 = mjx.make_data(data.model)
+    d0 = start_data(dims, data)
 
     def f(x, u):
         return state_of(physics_step(dims, data.model, with_state(dims, d0, x), u))

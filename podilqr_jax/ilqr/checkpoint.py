@@ -47,7 +47,7 @@ _FORMAT_2_NAMES = {
 _RESUMABLE_CHANGES = ("max_iterations",)
 # Settings added after format 3, left out of the fingerprint at their default,
 # so that a checkpoint written before they existed still resumes.
-_LATER_DEFAULTS = {"jacobian": "auto"}
+_LATER_DEFAULTS = {"jacobian": "auto", "engine": "auto"}
 
 
 def fingerprint(method: str, env, dims, cfg) -> dict[str, Any]:
@@ -68,7 +68,7 @@ def fingerprint(method: str, env, dims, cfg) -> dict[str, Any]:
     return {
         "method": method,
         "task": env.name,
-        "dims": dataclasses.asdict(dims),
+        "dims": dims.as_dict(),
         "task_arrays": digest.hexdigest(),
         "config": config,
     }

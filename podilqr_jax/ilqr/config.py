@@ -24,6 +24,14 @@ MJX 3.17 also has ``cpp`` (MuJoCo's C engine as a JAX call), which its
 ``make_data`` ties to host-side references that a jitted, vmapped rollout
 cannot carry; it is not offered."""
 
+ENGINES = ("auto", "mjx", "native")
+"""The engine a solve's rollouts run on (``SolverConfig.engine``, ``sim.engines``):
+``mjx`` (MJX, jitted and batched by ``vmap``: the engine of accelerators),
+``native`` (MuJoCo's C engine, batched over the host's cores by
+``mujoco.rollout``, no compilation) or ``auto`` (the default: MJX on an
+accelerator; on a CPU the engine that is faster for the model, by the rule of
+``sim.engines.auto_engine``)."""
+
 JACOBIAN_SETTINGS = ("auto", "exact", "differences")
 """How the model-based reference linearises the dynamics
 (``SolverConfig.jacobian``, ``model_based.linearise``): ``exact`` (forward
@@ -158,6 +166,12 @@ class SolverConfig:
       impl: MJX implementation of the solve's rollouts, one of ``IMPLS``
         (``jax`` or ``warp``). The model-based reference differentiates
         through MJX and always runs ``jax``.
+      engine: the engine of every rollout of the solve, one of ``ENGINES``:
+        ``auto`` (the default: MJX on a GPU or TPU; on a CPU MuJoCo's C
+        engine where it is faster, ``sim.engines``), ``mjx`` or ``native``.
+        The engine that ran is in the result (``Result.engine``).
+        The native engine has no derivative: its model-based reference
+        takes central differences (``jacobian`` auto or differences).
       jacobian: how the model-based reference linearises the dynamics, one of
         ``JACOBIAN_SETTINGS``: ``auto`` (the default) takes central
         differences of MJX's step on a contact-rich model (at least
@@ -195,6 +209,7 @@ class SolverConfig:
     memory_budget_mb: float = 2048.0
     rollout_chunk: Optional[int] = None
     impl: str = "jax"
+    engine: str = "auto"
     jacobian: str = "auto"
     reidentify: int = 2
     mirrored: bool = False
@@ -252,7 +267,22 @@ class SolverConfig:
                         f"`{name}`={value} only applies to variant='averaged' (got variant={self.variant!r}); "
                         f"set variant='averaged' or drop {name}."
                     )
+        if self.engine not in ENGINES:
+            raise ConfigError(
+                f"Unknown `engine` {self.engine!r}; choose one of {', '.join(ENGINES)} (MJX, MuJoCo's C engine "
+                "batched on the CPU's cores, or auto: MJX on an accelerator, the faster of the two on a CPU)."
+            )
+        if self.engine == "native" and self.impl != "jax":
+            raise ConfigError(
+                f"`impl`={self.impl!r} picks an MJX implementation, but `engine`='native' runs MuJoCo's C engine; "
+                "drop impl, or use engine='mjx' (or auto) with it."
+            )
         check_impl(self.impl)
+        if self.engine == "native" and self.jacobian == "exact" and not data_based:
+            raise ConfigError(
+                "`jacobian`='exact' differentiates through MJX, but `engine`='native' runs MuJoCo's C engine, "
+                "which has no derivative; use jacobian='differences' (or auto), or engine='mjx'."
+            )
         if self.jacobian not in JACOBIAN_SETTINGS:
             raise ConfigError(
                 f"Unknown `jacobian` {self.jacobian!r}; choose one of {', '.join(JACOBIAN_SETTINGS)} (the model-based "

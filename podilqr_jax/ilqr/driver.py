@@ -423,7 +423,7 @@ def _loop(ctx: Context, st: SolverState, timing: Timing, callback, options: RunO
             if options.checkpoint is not None and (iteration % options.every == 0 or final):
                 save_checkpoint(options.checkpoint, st, ctx.fingerprint)
             if callback is not None:
-                callback(_info(st, iteration, outcome, time.perf_counter() - t_iter))
+                callback(_info(st, iteration, outcome, time.perf_counter() - t_iter, ctx.dims.engine))
             if outcome.stop is not None:
                 return st, outcome.stop
     except KeyboardInterrupt:
@@ -434,7 +434,7 @@ def _loop(ctx: Context, st: SolverState, timing: Timing, callback, options: RunO
     return st, stopping.iterations_stop(cfg, ctx.noisy)
 
 
-def _info(st: SolverState, iteration: int, outcome: Outcome, wall: float) -> IterationInfo:
+def _info(st: SolverState, iteration: int, outcome: Outcome, wall: float, engine: str) -> IterationInfo:
     record = st.record
     return IterationInfo(
         iteration=iteration,
@@ -449,6 +449,7 @@ def _info(st: SolverState, iteration: int, outcome: Outcome, wall: float) -> Ite
         true_cost=record.true_cost_history[-1],
         note=outcome.note,
         sigma=record.sigma_history[-1] if record.sigma_history else float("nan"),
+        engine=engine,
     )
 
 
@@ -510,4 +511,5 @@ def terminate(ctx: Context, st: SolverState, stop: Stop, timing: Timing, watch: 
         sigma_units=list(ctx.units) if pod else [],
         mirrored=bool(st.mirrored and not st.open_loop) and pod,
         open_loop=bool(st.open_loop) or (pod and cfg.variant == "plain"),
+        engine=dims.engine,
     )

@@ -45,6 +45,7 @@ class IterationInfo:
     true_cost: float = float("nan")  # the policy's cost on the noiseless system
     note: str = ""  # what happened out of the ordinary (a retry, left-out rollouts)
     sigma: float = float("nan")  # the sysid scale of the iteration's identification (NaN: none, or model-based)
+    engine: str = "mjx"  # the engine of the rollouts (``SolverConfig.engine``): mjx or native
 
 
 @dataclasses.dataclass
@@ -97,6 +98,7 @@ class Result:
     sigma_units: list = dataclasses.field(default_factory=list)  # [nu] (cfg.sigma_scale)
     mirrored: bool = False  # the identification ran mirrored pairs at the end (cfg.mirrored or a recovery)
     open_loop: bool = False  # ... and open loop (variant plain, or a recovery switched to it)
+    engine: str = "mjx"  # the engine that ran the rollouts (``SolverConfig.engine``): mjx or native
 
     def __getattr__(self, name: str):
         """The record's counters and histories as attributes of the result."""
@@ -144,7 +146,7 @@ class Result:
         text = (
             f"{self.method} on {self.task}: {self.status} after {self.iterations} iterations "
             f"({self.message}); cost {self.cost_history[0]:.6g} -> {self.final_cost:.6g}; "
-            f"{self.rollouts} rollouts; {self.wall_s:.2f} s wall ({self.compile_s:.2f} s compiling)"
+            f"{self.rollouts} rollouts on {self.engine}; {self.wall_s:.2f} s wall ({self.compile_s:.2f} s compiling)"
         )
         if self.noisy:
             text += (
@@ -170,6 +172,7 @@ class Result:
             "sigma_units": self.sigma_units,
             "mirrored": self.mirrored,
             "open_loop": self.open_loop,
+            "engine": self.engine,
             "warnings": list(self.warnings),
             "control_limits": [[float(lo), float(hi)] for lo, hi in self.control_limits],
             "controls": self.controls.tolist(),

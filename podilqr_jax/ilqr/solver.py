@@ -24,7 +24,7 @@ from ..errors import ConfigError
 from ..identify.identification import Exact, actuator_units, data_based
 from ..identify.info_state import info_dim, observation_selector
 from ..identify.model_based import nonfinite_hint
-from ..sim import contacts, shared
+from ..sim import contacts, engines, shared
 from ..sim.rollout import bytes_per_rollout, on_device
 from ..task.env import Env, mjx_model_of
 from .backward import QuadraticCost, Regularisation
@@ -76,6 +76,7 @@ def solve(
     cfg = default_config(env) if cfg is None else cfg
     q = cfg.validate(env, data_based=True)
     run_options = _run_options(checkpoint, checkpoint_every, resume)
+    env = engines.on_engine(env, cfg.engine)
     dims, data = env.dims, on_device(_in_impl(env, cfg.impl))
     noisy = env.noisy and cfg.variant != "nominal"
     n_fwd = cfg.resolved_n_forward()
@@ -100,22 +101,31 @@ def solve_model_based(
     Same task, cost, backward pass, line search and stopping rules as
     :func:`solve`; the identification is replaced by the linearisation of
     ``mjx.step``: forward-mode derivatives, or central differences of the step
-    on a contact-rich model (``cfg.jacobian``). The data-based settings
-    (``q``, ``n_s``, ``sigma``) are unused.
+    on a contact-rich model (``cfg.jacobian``). On the native engine
+    (``cfg.engine``) it takes central differences of MuJoCo's C step, all
+    2 T (nx + nu) of them one batch over the cores; ``jacobian="exact"``
+    keeps ``engine="auto"`` on MJX. The data-based settings (``q``, ``n_s``,
+    ``sigma``) are unused.
     """
     cfg = default_config(env) if cfg is None else cfg
     cfg.validate(env, data_based=False)
     run_options = _run_options(checkpoint, checkpoint_every, resume)
+    env = engines.on_engine(env, "mjx" if cfg.engine == "auto" and cfg.jacobian == "exact" else cfg.engine)
     view = env.full_state_view()
     dims, data = view.dims, on_device(view.data)
-    jacobian = contacts.jacobian(cfg.jacobian, data.model)
-    identify = Exact(dims, data, nonfinite_hint(env.mj_model), contacts.one_at_a_time(data.model), jacobian)
+    native = dims.native is not None  # no derivative through MuJoCo's C engine: central differences, batched
+    jacobian = "differences" if native and cfg.jacobian == "auto" else contacts.jacobian(cfg.jacobian, data.model)
+    one_at_a_time = not native and contacts.one_at_a_time(data.model)
+    identify = Exact(dims, data, nonfinite_hint(env.mj_model), one_at_a_time, jacobian)
     ctx = _context("model-based", env, dims, data, cfg, 1, identify, False, 1)
     return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
 
 
 def _shared_width(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int) -> Optional[int]:
-    """The rollouts of the program the sysid batch and the line search share, or None (``sim.shared``)."""
+    """The rollouts of the program the sysid batch and the line search share, or None (``sim.shared``;
+    not on the native engine, whose programs compile in a fraction of a second)."""
+    if dims.native is not None:
+        return None
     ls_rollouts = (cfg.n_alphas + (1 if noisy else 0)) * n_fwd
     sysid_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy))
     ls_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1)

@@ -63,10 +63,17 @@ def identification_stop(n_bad: int, n_s: int, needed: int, model, target_rms, si
 def exact_model_stop(model, hint: str, jacobian: str = "exact") -> Optional[Stop]:
     """The model-based linearisation (``jacobian``: ``exact`` or
     ``differences``) is not finite (``hint``: what in the model may cause it)."""
-    if model_is_finite(model):
-        return None
     what = "exact linearisation" if jacobian == "exact" else "linearisation by central differences"
-    return Stop(Status.NONFINITE, f"the {what} is not finite" + hint)
+    if not model_is_finite(model):
+        return Stop(Status.NONFINITE, f"the {what} is not finite" + hint)
+    if not np.any(np.asarray(model.B)):
+        return Stop(
+            Status.NO_RESPONSE,
+            f"the {what} has B_t = 0 at every step: the controls move nothing in it, so its gradient is "
+            "that of the control cost alone and no reference optimum can be read from it"
+            + ("; try jacobian='differences'" if jacobian == "exact" else ""),
+        )
+    return None
 
 
 def model_is_finite(model) -> bool:

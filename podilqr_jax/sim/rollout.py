@@ -58,7 +58,7 @@ from mujoco import mjx
 from ..identify.info_state import initial_info_state, shift
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
-from . import rk4, xla_options
+from . import native, rk4, xla_options
 from .stages import stage
 
 
@@ -98,6 +98,8 @@ def physics_step(dims: EnvDims, model, d, u: jnp.ndarray, mj_step=None):
     else through ``mjx.step``; ``mj_step`` overrides the choice (the compile
     comparison of examples/third_party_compile.py passes ``mjx.step``).
     """
+    if dims.native is not None:
+        return native.step(dims.native, dims.substeps, d, u)
     if mj_step is None:
         mj_step = rk4.step if rk4.applies(model) else mjx.step
 
@@ -113,10 +115,21 @@ def make_data(model):
     return mjx.make_data(model, impl=getattr(model, "impl", None))
 
 
+def start_data(dims: EnvDims, data: EnvData):
+    """A rollout's first carry on the engine of ``dims``: MJX data, or the
+    native engine's :class:`~podilqr_jax.sim.native.NativeData` (its state
+    is overwritten with the start state by :func:`with_state`)."""
+    if dims.native is not None:
+        return native.start_data(dims.native, data.x0.dtype)
+    return make_data(data.model)
+
+
 def observe(dims: EnvDims, data: EnvData, d, x: jnp.ndarray) -> jnp.ndarray:
     """z = C x (+ D sensordata, with the sensors recomputed at the state of ``d``)."""
     z = data.C @ x
     if dims.sensors:
+        if dims.native is not None:
+            return z + data.D @ native.sensordata(dims.native, d)
         z = z + data.D @ mjx.forward(data.model, d).sensordata
     return z
 
@@ -124,7 +137,7 @@ def observe(dims: EnvDims, data: EnvData, d, x: jnp.ndarray) -> jnp.ndarray:
 @xla_options.jit(static_argnames=("dims",))
 def observations_of(dims: EnvDims, data: EnvData, x: jnp.ndarray) -> jnp.ndarray:
     """The noise-free observations of states x [N, nx] (sensors recomputed)."""
-    d0 = make_data(data.model)
+    d0 = start_data(dims, data)
     return jax.vmap(lambda x_i: observe(dims, data, with_state(dims, d0, x_i), x_i))(x)
 
 
@@ -260,7 +273,7 @@ def run_batch(
     line search of doublependulum-partial trace in 2.8-3.1 s (three cold runs)
     instead of 1.9-2.6 s (four; ``jax_log_compiles``).
     """
-    d0 = make_data(data.model)
+    d0 = start_data(dims, data)
     d_init = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (batch,) + a.shape), d0)
     *axes, x_axis = in_axes
     if x_axis is None:
@@ -298,7 +311,7 @@ def simulate(
     controller = InfoStateFeedback(policy, offset, du, q)
     options = dict(record_measured=True, record_state=record_state)
     if in_offset is None and in_du is None and in_noise is None:
-        return run(dims, data, controller, None, data.x0, make_data(data.model), limits, **options)
+        return run(dims, data, controller, None, data.x0, start_data(dims, data), limits, **options)
     batched = (offset if in_offset == 0 else None, du if in_du == 0 else None, noise)
     batch = jax.tree_util.tree_leaves(batched)[0].shape[0]
     axes = (InfoStateFeedback(None, in_offset, in_du, q), in_noise, None)
@@ -375,8 +388,11 @@ def bytes_per_rollout(dims: EnvDims, data: EnvData, noisy: bool = True, record_s
     inputs and outputs (with ``record_state``, as in the line search, also
     its states). Used to turn a memory budget into a chunk size; the
     benchmark (docs/performance.md) measures the real peak."""
-    shapes = jax.tree_util.tree_leaves(jax.eval_shape(make_data, data.model))  # no device memory touched
-    mjx_bytes = sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in shapes)
+    if dims.native is not None:  # the carry is MuJoCo's state vector; MjData lives on the host, per thread
+        mjx_bytes = 8 * dims.native.nstate
+    else:
+        shapes = jax.tree_util.tree_leaves(jax.eval_shape(make_data, data.model))  # no device memory touched
+        mjx_bytes = sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in shapes)
     T, nx = dims.horizon, dims.nx
     floats = (T + 1) * dims.nz + 2 * T * dims.nu  # z, u, du
     if noisy:

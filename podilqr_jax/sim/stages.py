@@ -119,7 +119,7 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
         def target(args, kwargs) -> tuple[Callable, tuple, dict]:
             """What runs this call: (a callable, its positional and keyword arguments)."""
             where = folder()
-            if where is None or jax.device_count() > 1:
+            if where is None or jax.device_count() > 1 or _native_engine(args, kwargs):
                 return jitted, args, kwargs
             bound = signature.bind(*args, **kwargs)
             bound.apply_defaults()
@@ -149,6 +149,13 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
         return call
 
     return wrap
+
+
+def _native_engine(args, kwargs) -> bool:
+    """Whether the call runs MuJoCo's C engine (``sim.native``): its host
+    callbacks cannot be exported, and there is little to save (the native
+    engine's programs trace and compile in a fraction of a second)."""
+    return any(getattr(a, "native", None) is not None for a in (*args, *kwargs.values()))
 
 
 def _canon(obj) -> str:

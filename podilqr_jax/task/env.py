@@ -46,10 +46,23 @@ class EnvDims:
     substeps: int
     horizon: int
     sensors: bool = False  # some observation reads ``sensordata`` (needs mjx.forward)
+    # The engine of the rollouts: None for MJX, or the ``sim.native.NativeModel``
+    # that runs them in MuJoCo's C engine (hashed by identity; ``Env.on_engine``).
+    native: Any = dataclasses.field(default=None, repr=False)
 
     @property
     def nx(self) -> int:
         return self.nq + self.nv
+
+    @property
+    def engine(self) -> str:
+        """``mjx`` or ``native``: the engine the rollouts of these dimensions run on."""
+        return "mjx" if self.native is None else "native"
+
+    def as_dict(self) -> dict:
+        """The sizes (and the engine where it is not MJX), as plain values."""
+        sizes = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "native"}
+        return sizes if self.native is None else sizes | {"engine": self.engine}
 
 
 class EnvData(NamedTuple):
@@ -263,9 +276,14 @@ class Env:
         )
         kwargs.update(changes)
         env = Env.from_model(self.mj_model, **kwargs)
-        env = dataclasses.replace(env, observation_labels=self.observation_labels)
+        env = dataclasses.replace(env, observation_labels=self.observation_labels).on_engine(self.dims.native)
         goal = int(self.data.goal_step)
         return env if goal == self.dims.horizon or "horizon" in changes else env.with_goal_step(goal)
+
+    def on_engine(self, native) -> "Env":
+        """A copy whose rollouts run on ``native`` (a ``sim.native.NativeModel``
+        of this task's model), or on MJX with None (``SolverConfig.engine``)."""
+        return dataclasses.replace(self, dims=dataclasses.replace(self.dims, native=native))
 
     def with_start_state(self, x0) -> "Env":
         """A copy starting from the state ``x0`` = [qpos, qvel] (the same MJX

@@ -35,6 +35,11 @@ Per task:
    search of ``(n_alphas + 1) x n_forward`` rollouts per fresh process, one
    process per chunk size: peak memory, time, and the costs against the
    unchunked batch.
+7. **Engines** (``bench/engines.py``): physics steps/s of a sysid batch on MJX
+   and on the native engine (MuJoCo's C step) per model, the bundled tasks and
+   the task files of ``examples/tasks/third_party`` and ``examples/tasks/robots``
+   (from a checkout), and the cold wall time of a POD-iLQR solve on each
+   engine to 1.001 x the model-based optimum on the bundled tasks.
 
 Writes ``DIR/bench.json`` (the machine, every measurement, and per task the
 summary fields ``rollout_throughput_vs_native``, ``non_rollout_fraction``,
@@ -86,6 +91,11 @@ class BenchSettings(Sized):
     ls_memory_task: str = "cartpole-partial"
     ls_memory_n_forward: int = 10_000
     ls_memory_chunks: tuple[Optional[int], ...] = (None, 22_000, 10_000, 5_000)
+    engine_globs: tuple[str, ...] = ("examples/tasks/third_party/*.toml", "examples/tasks/robots/*.toml")
+    engine_batch: int = 40
+    engine_repeats: int = 3
+    engine_mjx_budget_s: float = 60.0
+    engine_max_iterations: int = 300
 
     @classmethod
     def quick(cls) -> "BenchSettings":
@@ -103,6 +113,7 @@ class BenchSettings(Sized):
             cache_sets=("max_iterations=20",),
             ls_memory_n_forward=1_000,
             ls_memory_chunks=(None, 2_200, 1_000),
+            engine_globs=("examples/tasks/third_party/*.toml",),
         )
 
     @classmethod
@@ -127,6 +138,10 @@ class BenchSettings(Sized):
             ls_memory_task="pendulum-full",
             ls_memory_n_forward=20,
             ls_memory_chunks=(None, 44),
+            engine_globs=(),
+            engine_batch=4,
+            engine_repeats=1,
+            engine_max_iterations=3,
         )
 
 
@@ -297,7 +312,7 @@ def devices_child(task: str, n_s: int, n_avg: int, iterations: int) -> dict[str,
     return row
 
 
-SECTIONS = ("grid", "baselines", "memory", "devices", "cache", "ls_memory")
+SECTIONS = ("grid", "baselines", "memory", "devices", "cache", "ls_memory", "engines")
 
 
 def run(settings: BenchSettings, out: str, progress=print, sections=SECTIONS) -> dict[str, Any]:
@@ -325,6 +340,10 @@ def run(settings: BenchSettings, out: str, progress=print, sections=SECTIONS) ->
         report["cache"] = run_cache(settings, progress)
     if "ls_memory" in sections:
         report["ls_memory"] = run_ls_memory(settings, progress)
+    if "engines" in sections:
+        from . import engines
+
+        report["engines"] = engines.run(settings, progress)
     write(out, "bench", report)
     if "tasks" in report:
         plot(report, out)  # three figures from one report
@@ -560,6 +579,10 @@ def main(argv=None) -> int:
     report = run(settings, args.out, progress=lambda m: print(m, file=sys.stderr, flush=True), sections=sections)
     if "tasks" in report:
         print(format_summary(report))
+    if "engines" in sections:
+        from . import engines
+
+        print(engines.format_table(report["engines"]))
     print(f"wrote {args.out}/bench.json and plots in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return 0
 

@@ -1,0 +1,169 @@
+"""The two engines side by side: physics steps/s per model, and time to the optimum.
+
+``podilqr bench --sections engines`` runs, on this machine:
+
+1. **Steps/s** per model and engine: one sysid batch of ``batch`` closed-loop
+   perturbation rollouts (``rollout.perturbation_rollouts``, the solver's
+   own stage), compiled first (``compile_s``), then timed ``repeats`` times
+   (the median); steps/s counts physics steps (rollouts x horizon x
+   substeps). Models: the bundled tasks, the third-party gallery and the robot
+   suite (task files), each on MJX and on the native engine, and which one
+   ``auto`` picks;
+2. **Time to cost** on the bundled tasks: the model-based optimum J* (MJX's
+   exact Jacobians), then one cold POD-iLQR solve per engine in this process
+   (compile included, no persistent cache) and the wall seconds at which its
+   cost first reached 1.001 J*.
+
+An MJX batch on a large contact model can take minutes to compile on a CPU:
+``mjx_budget_s`` skips MJX on a model whose native batch suggests so
+(recorded as skipped, with the reason).
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import time
+from typing import Any, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import podilqr_jax as pj
+from podilqr_jax.sim import engines
+from podilqr_jax.sim.native import default_threads, native_model
+from podilqr_jax.sim.rollout import open_loop_policy, perturbation_rollouts
+from podilqr_jax.task.taskfile import load_task
+
+TASK_GLOBS = ("examples/tasks/third_party/*.toml", "examples/tasks/robots/*.toml")
+
+
+def task_list(names: tuple[str, ...], globs: tuple[str, ...] = TASK_GLOBS) -> list[str]:
+    """The bundled ``names`` and every task file the globs find (from the working folder)."""
+    files = sorted(f for g in globs for f in glob.glob(g))
+    return list(names) + files
+
+
+def load(name: str):
+    return load_task(name) if name.endswith(".toml") else pj.make_task(name)
+
+
+def sysid_batch_speed(env, engine: str, batch: int, repeats: int) -> dict[str, Any]:
+    """Compile and time one sysid batch of ``batch`` rollouts of ``env`` on ``engine``."""
+    on = env.on_engine(native_model(env.mj_model) if engine == "native" else None)
+    dims, data = on.dims, on.data
+    policy = open_loop_policy(jnp.zeros((dims.horizon, dims.nu)), dims.nz)
+    sigma = jnp.full((dims.nu,), 0.1)
+
+    def once(seed: int) -> float:
+        t = time.perf_counter()
+        perturbation_rollouts(dims, 1, batch, data, policy, jax.random.PRNGKey(seed), sigma).z.block_until_ready()
+        return time.perf_counter() - t
+
+    compile_s = once(0)
+    times = [once(r + 1) for r in range(repeats)]
+    seconds = float(np.median(times))
+    steps = batch * dims.horizon * dims.substeps
+    return {"compile_s": compile_s, "batch_s": seconds, "steps_per_s": steps / seconds}
+
+
+def run_speeds(tasks: list[str], batch: int, repeats: int, mjx_budget_s: float, progress) -> list[dict[str, Any]]:
+    rows = []
+    for name in tasks:
+        env = load(name)
+        row: dict[str, Any] = {
+            "task": env.name,
+            "source": name,
+            "nx": env.dims.nx,
+            "nu": env.dims.nu,
+            "auto": engines.auto_engine(env),
+        }
+        row["native"] = sysid_batch_speed(env, "native", batch, repeats)
+        # A native batch slower than this many seconds marks a model MJX would take minutes on (60x, docs).
+        if row["native"]["batch_s"] * 60 * (repeats + 1) > mjx_budget_s:
+            row["mjx"] = {"skipped": f"the native batch took {row['native']['batch_s']:.2f} s; MJX would exceed "
+                          f"the {mjx_budget_s:.0f} s budget"}  # fmt: skip
+        else:
+            row["mjx"] = sysid_batch_speed(env, "mjx", batch, repeats)
+            row["mjx_over_native"] = row["mjx"]["steps_per_s"] / row["native"]["steps_per_s"]
+        progress(f"engines {env.name}: {_speed_cell(row)}")
+        rows.append(row)
+    return rows
+
+
+def time_to_cost(task: str, engine: str, target: float, max_iterations: int) -> Optional[float]:
+    """Seconds (from the call, compile included) until a POD-iLQR solve on ``engine`` reaches ``target``."""
+    env = pj.make_task(task)
+    reached: list[float] = []
+    t = time.perf_counter()
+
+    def cb(info):
+        if not reached and info.cost <= target:
+            reached.append(time.perf_counter() - t)
+
+    pj.solve(env, pj.default_config(env, engine=engine, max_iterations=max_iterations), callback=cb)
+    return reached[0] if reached else None
+
+
+def run_time_to_cost(tasks: tuple[str, ...], max_iterations: int, progress) -> list[dict[str, Any]]:
+    rows = []
+    for task in tasks:
+        env = pj.make_task(task)
+        reference = pj.solve_model_based(env, pj.default_config(env, engine="mjx"))
+        target = reference.final_cost * 1.001
+        row = {"task": task, "target_cost": target, "auto": engines.auto_engine(env)}
+        for engine in ("mjx", "native"):
+            row[f"{engine}_s"] = time_to_cost(task, engine, target, max_iterations)
+        progress(f"time to 1.001 J*, {task}: mjx {row['mjx_s']}, native {row['native_s']}")
+        rows.append(row)
+    return rows
+
+
+def run(settings, progress) -> dict[str, Any]:
+    """The section's report (``settings``: ``BenchSettings``)."""
+    old = os.environ.get("PODILQR_CACHE")
+    os.environ["PODILQR_CACHE"] = "0"  # cold compiles, as a first run on a new machine
+    try:
+        tasks = task_list(settings.tasks, settings.engine_globs)
+        budget = settings.engine_mjx_budget_s
+        speeds = run_speeds(tasks, settings.engine_batch, settings.engine_repeats, budget, progress)
+        to_cost = run_time_to_cost(settings.tasks, settings.engine_max_iterations, progress)
+    finally:
+        if old is None:
+            os.environ.pop("PODILQR_CACHE", None)
+        else:
+            os.environ["PODILQR_CACHE"] = old
+    return {"batch": settings.engine_batch, "threads": default_threads(), "speeds": speeds, "time_to_cost": to_cost}
+
+
+def _speed_cell(row: dict[str, Any]) -> str:
+    mjx = row["mjx"]
+    mjx_text = mjx.get("skipped") or f"MJX {mjx['steps_per_s']:,.0f} steps/s (compile {mjx['compile_s']:.1f} s)"
+    nat = row["native"]
+    native_text = f"native {nat['steps_per_s']:,.0f} steps/s (compile {nat['compile_s']:.2f} s)"
+    return f"{native_text}; {mjx_text}; auto {row['auto']}"
+
+
+def format_table(section: dict[str, Any]) -> str:
+    lines = [
+        f"Sysid batch of {section['batch']} rollouts, native on {section['threads']} threads:",
+        "",
+        "| task | nx | nu | native steps/s | native compile s | MJX steps/s | MJX compile s | MJX / native | auto |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in section["speeds"]:
+        n, m = r["native"], r["mjx"]
+        if "skipped" in m:
+            mjx_cells = "skipped | | "
+        else:
+            mjx_cells = f"{m['steps_per_s']:,.0f} | {m['compile_s']:.1f} | {r['mjx_over_native']:.2f}"
+        lines.append(
+            f"| {r['task']} | {r['nx']} | {r['nu']} | {n['steps_per_s']:,.0f} | {n['compile_s']:.2f} | "
+            f"{mjx_cells} | {r['auto']} |"
+        )
+    lines += ["", "| task | s to 1.001 J*, MJX (cold) | native (cold) | auto |", "|---|---|---|---|"]
+    for r in section["time_to_cost"]:
+        cells = ["not reached" if r[k] is None else f"{r[k]:.1f}" for k in ("mjx_s", "native_s")]
+        lines.append(f"| {r['task']} | {cells[0]} | {cells[1]} | {r['auto']} |")
+    return "\n".join(lines)
