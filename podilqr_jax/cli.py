@@ -20,7 +20,9 @@ TASK is a bundled task name (``podilqr tasks`` lists them) or a task file
 (.toml / .json, see docs/task_files.md). Errors in the input print one
 paragraph and exit with status 2, without a traceback (docs/bad_input.md
 lists every case tried). Ctrl-C during ``podilqr solve`` writes the result
-after the last completed iteration and exits with status 130.
+after the last completed iteration and exits with status 130; so do a
+scheduler's SIGTERM, SIGHUP and SIGUSR1, exiting with 128 + the signal's
+number (143 for SIGTERM).
 """
 
 from __future__ import annotations
@@ -378,7 +380,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
 def _cmd_solve(args: argparse.Namespace) -> int:
     from .ilqr.interrupts import deferred_interrupts
 
-    # A Ctrl-C anywhere in here, solves or writing, ends with a complete result file.
+    # A Ctrl-C or a scheduler's stop anywhere in here, solves or writing, ends with a complete result file.
     with deferred_interrupts as interrupts:
         return _solve_and_write(args, interrupts)
 
@@ -445,8 +447,11 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
         paths.append(_solve_animation(main_result, env, stem + "_motion.gif"))
         print("wrote " + ", ".join(p for p in paths if p), file=sys.stderr)
     if interrupts.requested or any(r.status == pj.Status.INTERRUPTED for r in results):
-        print(f"interrupted: {args.out} holds the result after the last completed iteration", file=sys.stderr)
-        return 130
+        from .ilqr.interrupts import signal_name
+
+        by = f" by {signal_name(interrupts.signal)}" if interrupts.signal is not None else ""
+        print(f"interrupted{by}: {args.out} holds the result after the last completed iteration", file=sys.stderr)
+        return interrupts.exit_status
     return 1 if main_result.status in (pj.Status.NONFINITE, pj.Status.NO_RESPONSE) else 0
 
 

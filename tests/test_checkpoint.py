@@ -99,17 +99,21 @@ def test_same_seed_same_result_bit_for_bit(tmp_path):
 _CLI_WITH_CTRL_C = (
     "import runpy, signal, sys\n"
     "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+    "for s in (signal.SIGTERM, signal.SIGHUP, signal.SIGUSR1): signal.signal(s, signal.SIG_DFL)\n"
     "sys.argv = ['podilqr'] + sys.argv[1:]\n"
     "runpy.run_module('podilqr_jax.cli', run_name='__main__')\n"
 )
 
 
-def test_ctrl_c_writes_the_result_and_exits_cleanly(tmp_path):
-    """SIGINT during `podilqr solve`: exit 130, no traceback, a complete result
-    file with status `interrupted`, and a checkpoint that resumes. The signal
-    is sent the moment the first checkpoint appears, wherever the process is
-    then (saving, the next iteration, a JAX callback): the solve only reads the
-    request at an iteration boundary, so where it lands does not matter."""
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGUSR1])
+def test_ctrl_c_writes_the_result_and_exits_cleanly(tmp_path, signum):
+    """SIGINT (Ctrl-C), or a scheduler's SIGTERM, SIGHUP or SIGUSR1, during
+    `podilqr solve`: exit 128 + the signal's number, no traceback, a complete
+    result file with status `interrupted`, and a checkpoint that resumes to the
+    uninterrupted result bit for bit. The signal is sent the moment the first
+    checkpoint appears, wherever the process is then (saving, the next
+    iteration, a JAX callback): the solve only reads the request at an
+    iteration boundary, so where it lands does not matter."""
     out, ckpt = tmp_path / "result.json", tmp_path / "ckpt"
     cmd = [sys.executable, "-c", _CLI_WITH_CTRL_C, "solve", "pendulum-full", "--noise", "paper"]
     cmd += ["--set", "max_iterations=100000", "--set", "horizon=10", "--out", str(out), "--no-plots"]
@@ -119,15 +123,21 @@ def test_ctrl_c_writes_the_result_and_exits_cleanly(tmp_path):
     while not (ckpt / "checkpoint.npz").exists():
         assert proc.poll() is None and time.time() < deadline, proc.stderr.read() if proc.poll() else "timeout"
         time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signum)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err
+    assert proc.returncode == 128 + signum, err
     assert "Traceback" not in err and "Exception ignored" not in err and "interrupted" in err
     assert "stopping after the current iteration" in err
+    name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+    assert f"interrupted by {name}" in err
     d = json.loads(out.read_text())
-    assert d["status"] == "interrupted" and d["iterations"] >= 1
+    assert d["status"] == "interrupted" and d["iterations"] >= 1 and name in d["message"]
     assert np.all(np.isfinite(d["controls"])) and np.all(np.isfinite(d["K"]))
     assert len(d["cost_history"]) == d["iterations"] + 1
+    if signum == signal.SIGTERM:  # the final checkpoint resumes to the uninterrupted solve (in-process)
+        env = pj.make_task("pendulum-full", noise="paper").replace(horizon=10)
+        cfg = pj.default_config(env, max_iterations=d["iterations"] + 2)
+        _assert_same(pj.solve(env, cfg), pj.solve(env, cfg, resume=ckpt))
 
 
 def _sigint_later(delay_s: float) -> None:

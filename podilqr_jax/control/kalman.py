@@ -116,7 +116,7 @@ def identify_about_nominal(
         raise ConfigError("The Kalman estimator is for data-based policies on the task's observations.")
     dims = env.dims
     q = policy.q
-    n_s = n_s or max(cfg.n_s, 4 * info_dim(dims.nz, dims.nu, q) + 4 * dims.nu)
+    n_s = n_s or max(cfg.resolved_n_s(env), 4 * info_dim(dims.nz, dims.nu, q) + 4 * dims.nu)
     ctrl = policy.controller
     # one open-loop identification, the noise off, sigma in absolute units, the plain least-squares fit
     settings = cfg.replace(

@@ -39,6 +39,9 @@ mode through MJX's step), ``differences`` (central differences of the same
 step) or ``auto`` (the default: differences on a contact-rich model, exact
 otherwise; ``sim.contacts.jacobian``)."""
 
+MIN_N_S = 40
+"""The fewest sysid rollouts of the default ``n_s`` (``SolverConfig.resolved_n_s``)."""
+
 SIGMA_SCALES = ("actuator", "absolute")
 """The units of ``SolverConfig.sigma``: each actuator's half ctrlrange where it
 is limited (``actuator``), or one sigma for every actuator (``absolute``)."""
@@ -82,7 +85,9 @@ class SolverConfig:
       q: past observations in the information state; None picks 1 when the
         task observes the full state and 2 otherwise.
       n_s: sysid rollouts per iteration (must be >= q (nz + nu), the number of
-        regressors of the least-squares fit).
+        regressors of the least-squares fit). None (the default) scales with
+        the model: ``MIN_N_S`` = 40 or twice the regressors, whichever is more
+        (40 on every bundled and gallery task; ``resolved_n_s``).
       sigma: standard deviation of the sysid control perturbations du, in
         the units ``sigma_scale`` says; with ``adapt_sigma`` the start of an
         adaptive scale.
@@ -184,7 +189,7 @@ class SolverConfig:
     """
 
     q: Optional[int] = None
-    n_s: int = 40
+    n_s: Optional[int] = None
     sigma: float = 1e-4
     sigma_scale: str = "actuator"
     adapt_sigma: bool = True
@@ -230,6 +235,13 @@ class SolverConfig:
         if self.q is not None:
             return self.q
         return 1 if fully_observed(env) else 2
+
+    def resolved_n_s(self, env: Env) -> int:
+        """``n_s``, or where it is None the default that scales with the fit:
+        ``MIN_N_S`` or twice the ARMA fit's regressors q (nz + nu), whichever is more."""
+        if self.n_s is not None:
+            return self.n_s
+        return max(MIN_N_S, 2 * n_regressors(env.dims.nz, env.dims.nu, self.resolved_q(env)))
 
     def resolved_n_avg(self) -> int:
         if self.n_avg is not None:
@@ -299,7 +311,9 @@ class SolverConfig:
             raise ConfigError(
                 f"Unknown estimator {self.estimator!r}; choose one of {', '.join(ESTIMATORS)} (see docs/estimators.md)."
             )
-        check_int("n_s", self.n_s, 1)
+        if self.n_s is not None:
+            check_int("n_s", self.n_s, 1)
+        n_s = self.resolved_n_s(env)
         check_int("max_iterations", self.max_iterations, 1)
         check_int("n_alphas", self.n_alphas, 1)
         check_int("seed", self.seed, 0)
@@ -332,17 +346,17 @@ class SolverConfig:
             )
         if data_based and self.estimator == "iv":
             m = n_instruments(env.dims.nz, env.dims.nu, q)
-            if self.n_s < 2 * m:
+            if n_s < 2 * m:
                 raise ConfigError(
-                    f"`n_s`={self.n_s} is too small for estimator='iv': its {m} instruments (q={q}, "
+                    f"`n_s`={n_s} is too small for estimator='iv': its {m} instruments (q={q}, "
                     f"nz={env.dims.nz}, nu={env.dims.nu}) need n_s >= {2 * m}, and n_s >= {10 * m} keeps the "
                     "estimate from leaning toward least squares. Raise n_s or use estimator='ols'."
                 )
         if data_based:
             p = n_regressors(env.dims.nz, env.dims.nu, q)
-            if self.n_s < p:
+            if n_s < p:
                 raise ConfigError(
-                    f"`n_s`={self.n_s} is below the {p} regressors of the ARMA fit at "
+                    f"`n_s`={n_s} is below the {p} regressors of the ARMA fit at "
                     f"q={q} (q x (nz + nu) with nz={env.dims.nz}, nu={env.dims.nu}): the "
                     f"least squares would be underdetermined. Use n_s >= {p} (a few "
                     "times more is better), or lower q."

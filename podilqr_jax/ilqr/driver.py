@@ -270,6 +270,18 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
     record.grad_norm_history.append(grad_norm)
     record.mu_history.append(st.mu)
     stop = stopping.backward_stop(back_ok, grad_norm, ctx.noisy, cfg)
+    if stop is not None and not back_ok and ctx.reidentify:
+        # A fit that no mu up to mu_max regularises is a poor identification, as a
+        # step that no mu makes lower the cost is: the same recoveries before the stop.
+        recovery = _recover(ctx, st)
+        if recovery is not None:
+            record.alpha_history.append(0.0)
+            record.cost_history.append(nominal.cost)
+            true_cost, open_cost = ground_truth(ctx, st, timing)
+            record.true_cost_history.append(true_cost)
+            record.open_loop_cost_history.append(open_cost)
+            why = "at every sigma" if recovery[0] else f"mu above mu_max={cfg.mu_max:g}"
+            return Outcome(None, f"the backward pass needs {why}: {recovery[1]}", False, iter_rollouts)
     if stop is not None:
         if back_ok:  # converged: the gains of this pass go with the nominal
             st.back_k, st.gains = back.k, back.K
@@ -338,14 +350,27 @@ def _reject(ctx: Context, st: SolverState, ls, note: str) -> tuple[Optional[Stop
     if st.mu <= cfg.mu_max:
         record.mu_retries += 1
         return None, f"no step lowered the cost: mu raised to {st.mu:.3g}, retrying"
+    recovery = _recover(ctx, st)
+    if recovery is not None:
+        changed, how = recovery
+        return None, (
+            "no step lowered the cost at any sigma: " if changed else "no step lowered the cost up to mu_max: "
+        ) + how
+    tried = experiments_tried(st, cfg) if ctx.escalate else []
+    return stopping.line_search_failed(cfg, st.streak, tried, ls, ctx.steps, st.nominal.cost, ctx.reidentify), note
+
+
+def _recover(ctx: Context, st: SolverState) -> Optional[tuple[bool, str]]:
+    """The recoveries of a noiseless data-based solve whose identified model gave
+    no usable step up to mu_max, before it stops: fresh perturbations at another
+    scale (``cfg.reidentify``), then another experiment (``cfg.escalate``).
+    Returns (whether the experiment changed, what was done), or None when they are spent."""
+    cfg = ctx.cfg
     if st.reidentified < ctx.reidentify:  # before giving up: fresh perturbations at another scale, mu afresh
         st.reidentified += 1
         _identify_afresh(ctx, st)
         sigma = st.sigma * reidentify_scale(st.reidentified)
-        return (
-            None,
-            f"no step lowered the cost up to mu_max: re-identifying with fresh perturbations at sigma = {sigma:.3g}",
-        )
+        return False, f"re-identifying with fresh perturbations at sigma = {sigma:.3g}"
     change = next_experiment(st, ctx.closed_loop) if ctx.escalate else None
     if change is not None:  # the scales are spent: another experiment for the rest of the solve, the scales afresh
         setattr(st, change, 1)
@@ -355,9 +380,8 @@ def _reject(ctx: Context, st: SolverState, ls, note: str) -> tuple[Optional[Stop
             how = f"identifying with mirrored +du/-du pairs from now on (2 x {cfg.n_s * cfg.resolved_n_avg()} rollouts)"
         else:
             how = "identifying open loop, without pairs, from now on (the paper's experiment)"
-        return None, "no step lowered the cost at any sigma: " + how
-    tried = experiments_tried(st, cfg) if ctx.escalate else []
-    return stopping.line_search_failed(cfg, st.streak, tried, ls, ctx.steps, st.nominal.cost, ctx.reidentify), note
+        return True, how
+    return None
 
 
 def _identify_afresh(ctx: Context, st: SolverState) -> None:
@@ -410,7 +434,7 @@ def _loop(ctx: Context, st: SolverState, timing: Timing, callback, options: RunO
             if interrupts.requested:  # Ctrl-C during the last iteration (or before the first)
                 if options.checkpoint is not None:
                     save_checkpoint(options.checkpoint, st, ctx.fingerprint)
-                return st, stopping.INTERRUPTED
+                return st, stopping.interrupted(interrupts.signal)
             t_iter = time.perf_counter()
             with CompileWatch() as watch:
                 outcome = step(ctx, st, timing)
@@ -430,7 +454,7 @@ def _loop(ctx: Context, st: SolverState, timing: Timing, callback, options: RunO
         st = safe.restored()
         if options.checkpoint is not None:  # the last completed iteration: resumable as is
             save_checkpoint(options.checkpoint, st, ctx.fingerprint)
-        return st, stopping.INTERRUPTED
+        return st, stopping.interrupted(interrupts.signal)
     return st, stopping.iterations_stop(cfg, ctx.noisy)
 
 

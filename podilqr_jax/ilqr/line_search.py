@@ -87,7 +87,7 @@ def line_search(
         traj = _chunked_candidates(dims, q, data, policy, candidate_offsets, noise, n_fwd, chunk)
     else:
         offsets = jnp.repeat(candidate_offsets, n_fwd, axis=0) if n_fwd > 1 else candidate_offsets
-        offsets, noise = shard_batch((offsets, noise), batch)
+        offsets, noise = shard_batch((offsets, noise), batch, dims)
         traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True, noise=noise)
         traj = average_repeats(traj, n_fwd)
     return _choose(q, data, traj, alphas, cost0, dV1, dV2, accept_ratio)

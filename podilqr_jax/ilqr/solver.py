@@ -40,7 +40,8 @@ def default_config(env: Env, **overrides) -> SolverConfig:
     """The task's recommended settings (``env`` defaults), with overrides."""
     settings = dict(env.solver_defaults)
     settings.update(overrides)
-    return SolverConfig().replace(**settings)
+    cfg = SolverConfig().replace(**settings)
+    return cfg if cfg.n_s is not None else cfg.replace(n_s=cfg.resolved_n_s(env))
 
 
 def solve(
@@ -75,6 +76,7 @@ def solve(
     """
     cfg = default_config(env) if cfg is None else cfg
     q = cfg.validate(env, data_based=True)
+    cfg = cfg.replace(n_s=cfg.resolved_n_s(env))
     run_options = _run_options(checkpoint, checkpoint_every, resume)
     env = engines.on_engine(env, cfg.engine)
     dims, data = env.dims, on_device(_in_impl(env, cfg.impl))
@@ -109,6 +111,7 @@ def solve_model_based(
     """
     cfg = default_config(env) if cfg is None else cfg
     cfg.validate(env, data_based=False)
+    cfg = cfg.replace(n_s=cfg.resolved_n_s(env))
     run_options = _run_options(checkpoint, checkpoint_every, resume)
     env = engines.on_engine(env, "mjx" if cfg.engine == "auto" and cfg.jacobian == "exact" else cfg.engine)
     view = env.full_state_view()

@@ -15,7 +15,7 @@ The rules in the order the driver meets them in an iteration:
    spent (``line_search_failed``, with the numbers the line search measured);
 5. around the loop: a non-finite first nominal, ``max_iterations``, Ctrl-C,
    a checkpoint of a finished solve (``initial_stop``, ``iterations_stop``,
-   ``INTERRUPTED``, ``resumed_stop``).
+   ``interrupted``, ``resumed_stop``).
 """
 
 from __future__ import annotations
@@ -35,7 +35,12 @@ class Stop(NamedTuple):
     message: str
 
 
-INTERRUPTED = Stop(Status.INTERRUPTED, "Ctrl-C; the result is the nominal and gains of the last completed iteration")
+def interrupted(signum: Optional[int]) -> Stop:
+    """A stop asked for by Ctrl-C or a scheduler's signal (``interrupts``)."""
+    from .interrupts import signal_name
+
+    by = "Ctrl-C" if signum is None else signal_name(signum)
+    return Stop(Status.INTERRUPTED, f"{by}; the result is the nominal and gains of the last completed iteration")
 
 
 def identification_stop(n_bad: int, n_s: int, needed: int, model, target_rms, sigma: float) -> Optional[Stop]:

@@ -5,17 +5,22 @@ MJX wherever JAX runs on an accelerator (a GPU or TPU: MJX is the engine of
 the design there) or over several devices (the native engine does not
 shard), and on a single CPU device picks by the model (:func:`auto_engine`):
 
-- MJX where the model is small and smooth: no constraint rows that MJX's
-  step carries for contacts, limits or friction (``contacts.constraint_rows``
-  below ``MANY_ROWS``), the Euler or implicit integrator, and at most
-  ``SMALL_NV`` degrees of freedom. There MJX's compiled batch runs 1.0-1.7x
-  as fast per iteration as the native one (the bundled pendulum, cart-pole and
-  double pendulum), and its compile of a few seconds is paid once per machine
-  (the persistent cache);
-- native everywhere else: on contact models, RK4 and the field's robots MJX
-  on a CPU runs tens of times slower than MuJoCo's C engine and compiles for
-  tens of seconds to minutes (docs/performance.md has the figures and the
-  command that measures them, ``podilqr bench --sections engines``).
+- MJX where the model is small and smooth: fewer than ``MANY_ROWS``
+  constraint rows in MJX's step (contacts, limits, friction;
+  ``contacts.constraint_rows``), the Euler or implicit integrator, and at most
+  ``SMALL_NV`` degrees of freedom. There MJX's compiled sysid batch runs
+  1.4-4.3x the physics steps/s of the native one on 2 cores (the bundled
+  pendulum and cart-pole, dm_control's pendulum, point mass and reacher), and
+  its compile of 2-4 s is paid once per machine (the persistent cache);
+- native everywhere else: 1.5-50x MJX's steps/s on contact models, RK4 models
+  and the field's robots, where MJX compiles for 4-18 s (the manipulator: no
+  result in 90 s) against the native engine's 0.3-1 s.
+
+Measured by ``podilqr bench --sections engines`` on 2 cores
+(docs/performance.md): the rule picks the faster engine on 18 of the 20
+models there. The two it misses, dm_control's acrobot and cart-pole (RK4, 2
+degrees of freedom), step 1.36x and 1.20x faster on MJX; over a solve of a
+few hundred iterations that gain is of the order of MJX's 3 s longer compile.
 """
 
 from __future__ import annotations

@@ -374,10 +374,11 @@ def on_device(x):
     return jax.device_put(x, replicated())
 
 
-def shard_batch(tree, batch: int):
-    """Constrain every array of ``tree`` (leading axis ``batch``) to ``batch_sharding``."""
+def shard_batch(tree, batch: int, dims: Optional[EnvDims] = None):
+    """Constrain every array of ``tree`` (leading axis ``batch``) to ``batch_sharding``;
+    not on the native engine (``dims.native``), whose batches run on this host's cores."""
     sharding = batch_sharding(batch)
-    if sharding is None or tree is None:
+    if sharding is None or tree is None or (dims is not None and dims.native is not None):
         return tree
     return jax.tree_util.tree_map(lambda a: jax.lax.with_sharding_constraint(a, sharding), tree)
 
@@ -468,7 +469,7 @@ def _sequences(dims, q, data, policy, du, noise_key, n_avg, noisy, chunk) -> Tra
         du = jnp.repeat(du, n_avg, axis=0)
     batch = n * n_avg
     noise = sample(noise_key, data.noise, batch, dims.horizon) if noisy else None
-    du, noise = shard_batch((du, noise), batch)
+    du, noise = shard_batch((du, noise), batch, dims)
     zero = jnp.zeros((dims.horizon, dims.nu), policy.u_bar.dtype)
     return average_repeats(simulate(dims, q, data, policy, zero, du, noise=noise), n_avg)
 

@@ -127,7 +127,7 @@ def rollout_group(
     ``offset`` and ``du`` [width, T, nu] (and of ``noise``), with the
     states recorded: the program the sysid batch and the line search share."""
     batch = offset.shape[0]
-    offset, du, noise = shard_batch((offset, du, noise), batch)
+    offset, du, noise = shard_batch((offset, du, noise), batch, dims)
     return simulate(dims, q, data, policy, offset, du, record_state=True, noise=noise)
 
 

@@ -94,7 +94,7 @@ class BenchSettings(Sized):
     engine_globs: tuple[str, ...] = ("examples/tasks/third_party/*.toml", "examples/tasks/robots/*.toml")
     engine_batch: int = 40
     engine_repeats: int = 3
-    engine_mjx_budget_s: float = 60.0
+    engine_mjx_budget_s: float = 90.0
     engine_max_iterations: int = 300
 
     @classmethod
