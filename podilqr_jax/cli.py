@@ -65,7 +65,12 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command")
     p = sub.add_parser("solve", help="solve a task and write JSON and plots")
     p.add_argument("task", help="bundled task name (see `podilqr tasks`) or a .toml/.json task file")
-    p.add_argument("--method", choices=("pod-ilqr", "model-based"), default="pod-ilqr")
+    p.add_argument(
+        "--method",
+        choices=("pod-ilqr", "model-based"),
+        default="pod-ilqr",
+        help="pod-ilqr (the default: from rollouts alone) or model-based (iLQR on the model's derivatives)",
+    )
     p.add_argument(
         "--compare", action="store_true", help="also run the model-based reference and report the cost ratio"
     )
@@ -193,7 +198,7 @@ def _parser() -> argparse.ArgumentParser:
         help="benchmark: n_s x n_avg grid, phases, native/serial baselines, memory, devices (`podilqr bench --help`)",
         add_help=False,
     )
-    t = sub.add_parser("tasks", help="list the bundled tasks")
+    t = sub.add_parser("tasks", help="the bundled tasks as a table: observation, nx / nz / nu, horizon, control step")
     t.set_defaults(func=_cmd_tasks)
     return parser
 
@@ -264,10 +269,18 @@ def _cmd_bench(argv: list[str]) -> int:
 
 
 def _cmd_tasks(args: argparse.Namespace) -> int:
-    from .task.tasks import TASKS
+    from .task.tasks import TASKS, make_task
 
+    rows = [("task", "observation", "nx", "nz", "nu", "horizon", "control dt", "controls")]
     for name in TASKS:
-        print(name)
+        env = make_task(name)
+        d = env.dims
+        limits = "limited" if env.limited else "free"
+        rows.append((name, ", ".join(env.observation_labels), str(d.nx), str(d.nz), str(d.nu), str(d.horizon),
+                     f"{env.control_dt:g} s", limits))  # fmt: skip
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    for row in rows:
+        print("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip())
     return 0
 
 

@@ -74,9 +74,12 @@ def test_resume_refuses_another_task_or_settings(noisy_task, tmp_path):
         pj.solve(noisy_task.replace(R=3.0, name="other"), cfg, resume=tmp_path)
     with pytest.raises(pj.ConfigError, match="No checkpoint"):
         pj.solve(noisy_task, cfg, resume=tmp_path / "missing")
-    (tmp_path / "checkpoint.npz").write_bytes(b"not a checkpoint")
-    with pytest.raises(pj.ConfigError, match="cannot be read"):
-        pj.solve(noisy_task, cfg, resume=tmp_path)
+    whole = (tmp_path / "checkpoint.npz").read_bytes()
+    for damaged in (b"not a checkpoint", b"", whole[: len(whole) // 2]):  # garbage, empty, cut short
+        (tmp_path / "checkpoint.npz").write_bytes(damaged)
+        with pytest.raises(pj.ConfigError, match="cannot be read: it is empty, cut short or not a podilqr") as err:
+            pj.solve(noisy_task, cfg, resume=tmp_path)
+        assert "pickled" not in str(err.value) and "checkpoint.npz" in str(err.value)
     with pytest.raises(pj.ConfigError, match="checkpoint_every"):
         pj.solve(noisy_task, cfg, checkpoint=tmp_path, checkpoint_every=0)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 
@@ -129,7 +130,14 @@ def test_tasks_lists_the_bundled_tasks(capsys):
     import podilqr_jax as pj
 
     assert main(["tasks"]) == 0
-    assert capsys.readouterr().out.split() == list(pj.TASKS)
+    header, *rows = [re.split(r"\s{2,}", line.strip()) for line in capsys.readouterr().out.splitlines()]
+    assert header == ["task", "observation", "nx", "nz", "nu", "horizon", "control dt", "controls"]
+    assert [row[0] for row in rows] == list(pj.TASKS)
+    for name, row in zip(pj.TASKS, rows, strict=True):
+        env = pj.make_task(name)
+        d = env.dims
+        assert row[1] == ", ".join(env.observation_labels)
+        assert row[2:6] == [str(d.nx), str(d.nz), str(d.nu), str(d.horizon)], row
 
 
 def test_bench_tiny_runs_every_section_from_the_installed_package(tmp_path):

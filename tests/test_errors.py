@@ -124,3 +124,18 @@ def test_perturbations_below_resolution_are_reported_not_converged():
     result = pj.solve(env, pj.default_config(env, sigma=1e-300))
     assert result.status == pj.Status.NO_RESPONSE, result.summary()
     assert "raise sigma" in result.message
+
+
+@pytest.mark.parametrize("suffix", [".toml", ".json"])
+def test_a_task_file_that_is_not_utf8_is_one_paragraph_and_exit_2(tmp_path, capsys, suffix):
+    from podilqr_jax.cli import main
+
+    path = tmp_path / f"latin1{suffix}"
+    path.write_bytes('name = "caf\u00e9"\n'.encode("latin-1"))  # 0xe9 alone is not UTF-8
+    with pytest.raises(pj.TaskError, match=r"not UTF-8 text \(byte 0xe9 at offset 11\); save it as UTF-8"):
+        from podilqr_jax.task.taskfile import load_task
+
+        load_task(path)
+    assert main(["solve", str(path), "--out", str(tmp_path / "r.json")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "not UTF-8" in err and str(path) in err

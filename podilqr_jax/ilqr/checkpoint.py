@@ -23,6 +23,7 @@ import hashlib
 import json
 import os
 import tempfile
+import zipfile
 from typing import Any
 
 import jax.numpy as jnp
@@ -130,8 +131,13 @@ def load_checkpoint(path: str | os.PathLike, expected: dict[str, Any], to_device
         with np.load(file, allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
         header = json.loads(str(arrays.pop("header")))
-    except (OSError, ValueError, KeyError) as exc:
-        raise ConfigError(f"The checkpoint {file!r} cannot be read ({exc}); it is not a podilqr checkpoint.") from None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        # np.load names a file it cannot read as an archive "pickled data": say what it is instead
+        raise ConfigError(
+            f"The checkpoint {file!r} cannot be read: it is empty, cut short or not a podilqr checkpoint "
+            f"({type(exc).__name__}). Resume from another checkpoint folder, or start the solve afresh "
+            "without --resume."
+        ) from None
     if header.get("format") not in READABLE:
         raise ConfigError(
             f"The checkpoint {file!r} has format {header.get('format')!r}; this version reads "

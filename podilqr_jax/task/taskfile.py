@@ -75,6 +75,11 @@ def read_task_spec(path: str) -> dict[str, Any]:
             raise TaskError(f"Task files must end in .toml or .json; got {path!r}.")
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise TaskError(f"The task file {path!r} is not valid {ext[1:].upper()}: {exc}.") from None
+    except UnicodeDecodeError as exc:
+        raise TaskError(
+            f"The task file {path!r} is not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset {exc.start}); "
+            "save it as UTF-8."
+        ) from None
     if not isinstance(spec, dict):
         raise TaskError(f"The task file {path!r} must hold a table/object at the top level.")
     _check_finite(spec, "")
