@@ -108,6 +108,11 @@ CASES = (
     Case("`n_s` below the number of regressors", SOLVE + ("--set", "n_s=3")),
     Case("An unknown solver setting", SOLVE + ("--set", "sigmaa=1e-3")),
     Case("A solver setting of the wrong type", SOLVE + ("--set", "sigma=abc")),
+    Case("An unknown engine", SOLVE + ("--set", "engine=gpu")),
+    Case(
+        "Exact Jacobians asked of the native engine",
+        SOLVE + ("--method", "model-based", "--set", "engine=native", "--set", "jacobian=exact"),
+    ),
     Case("A task file that is not valid TOML", SOLVE, raw_task='name = "arm"\nmodel = arm.xml\n'),
     Case("A task file without a model", SOLVE, raw_task='name = "arm"\nhorizon = 20\n'),
     Case("An unknown bundled task", ("solve", "pendulum-ful", "--out", "{dir}/result.json")),
