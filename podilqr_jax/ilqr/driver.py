@@ -276,10 +276,7 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
         recovery = _recover(ctx, st)
         if recovery is not None:
             record.alpha_history.append(0.0)
-            record.cost_history.append(nominal.cost)
-            true_cost, open_cost = ground_truth(ctx, st, timing)
-            record.true_cost_history.append(true_cost)
-            record.open_loop_cost_history.append(open_cost)
+            _record_costs(ctx, st, timing)
             why = "at every sigma" if recovery[0] else f"mu above mu_max={cfg.mu_max:g}"
             return Outcome(None, f"the backward pass needs {why}: {recovery[1]}", False, iter_rollouts)
     if stop is not None:
@@ -299,11 +296,17 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
         stop = _accept(ctx, st, ls, back)
     else:
         stop, note = _reject(ctx, st, ls, note)
+    _record_costs(ctx, st, timing)
+    return Outcome(stop, note, accepted, iter_rollouts)
+
+
+def _record_costs(ctx: Context, st: SolverState, timing: Timing) -> None:
+    """The end of an iteration's record: the nominal's cost, and the policy's true and open-loop costs."""
+    record = st.record
     record.cost_history.append(st.nominal.cost)
     true_cost, open_cost = ground_truth(ctx, st, timing)
     record.true_cost_history.append(true_cost)
     record.open_loop_cost_history.append(open_cost)
-    return Outcome(stop, note, accepted, iter_rollouts)
 
 
 def _accept(ctx: Context, st: SolverState, ls, back) -> Optional[Stop]:

@@ -36,10 +36,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
+from podilqr_jax.cli import load_env
 from podilqr_jax.sim import engines
 from podilqr_jax.sim.native import default_threads, native_model
 from podilqr_jax.sim.rollout import open_loop_policy, perturbation_rollouts
-from podilqr_jax.task.taskfile import load_task
 
 TASK_GLOBS = ("examples/tasks/third_party/*.toml", "examples/tasks/robots/*.toml")
 
@@ -48,10 +48,6 @@ def task_list(names: tuple[str, ...], globs: tuple[str, ...] = TASK_GLOBS) -> li
     """The bundled ``names`` and every task file the globs find (from the working folder)."""
     files = sorted(f for g in globs for f in glob.glob(g))
     return list(names) + files
-
-
-def load(name: str):
-    return load_task(name) if name.endswith(".toml") else pj.make_task(name)
 
 
 def sysid_batch_speed(env, engine: str, batch: int, repeats: int) -> dict[str, Any]:
@@ -90,7 +86,7 @@ def mjx_in_child(source: str, batch: int, repeats: int, budget_s: float) -> dict
 def run_speeds(tasks: list[str], batch: int, repeats: int, mjx_budget_s: float, progress) -> list[dict[str, Any]]:
     rows = []
     for name in tasks:
-        env = load(name)
+        env = load_env(name)
         row: dict[str, Any] = {
             "task": env.name,
             "source": name,
@@ -191,7 +187,7 @@ def main(argv=None) -> int:
     parser.add_argument("batch", type=int)
     parser.add_argument("repeats", type=int)
     args = parser.parse_args(argv)
-    print(json.dumps(sysid_batch_speed(load(args.task), "mjx", args.batch, args.repeats)))
+    print(json.dumps(sysid_batch_speed(load_env(args.task), "mjx", args.batch, args.repeats)))
     return 0
 
 
