@@ -281,15 +281,9 @@ def _bases(cls: type) -> list[str]:
 
 
 def _sources() -> dict[str, str]:
-    """Public name -> the submodule ``__init__.py`` imports it from (constants carry no ``__module__``)."""
+    """Public name -> the submodule the package loads it from (constants carry no ``__module__``)."""
     package = sys.modules[PACKAGE]
-    tree = ast.parse(Path(package.__file__).read_text(encoding="utf-8"))
-    found: dict[str, str] = {}
-    for node in tree.body:
-        if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module:
-            for alias in node.names:
-                found[alias.asname or alias.name] = f"{PACKAGE}.{node.module}"
-    return found
+    return {name: PACKAGE + module for name, module in package._PUBLIC.items()}
 
 
 def _module_of(name: str, obj: Any, sources: dict[str, str]) -> str:

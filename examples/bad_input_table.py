@@ -81,6 +81,20 @@ def _read_only_folder(root: str) -> None:
     open(os.path.join(root, "not_a_folder"), "w").close()
 
 
+def _task_in_latin1(root: str) -> None:
+    with open(os.path.join(root, "arm.toml"), "wb") as f:
+        f.write(TASK.format(**GOOD_TASK).replace('name = "arm"', 'name = "bras articul\xe9"').encode("latin-1"))
+
+
+def _checkpoint(content: bytes) -> Callable[[str], None]:
+    def write(root: str) -> None:
+        os.makedirs(os.path.join(root, "ckpt"))
+        with open(os.path.join(root, "ckpt", "checkpoint.npz"), "wb") as f:
+            f.write(content)
+
+    return write
+
+
 CASES = (
     Case("Malformed XML (an unclosed element)", SOLVE, raw_model="<mujoco><worldbody><body></worldbody></mujoco>"),
     Case(
@@ -115,6 +129,7 @@ CASES = (
     ),
     Case("A task file that is not valid TOML", SOLVE, raw_task='name = "arm"\nmodel = arm.xml\n'),
     Case("A task file without a model", SOLVE, raw_task='name = "arm"\nhorizon = 20\n'),
+    Case("A task file that is not UTF-8 (Latin-1)", SOLVE, setup=_task_in_latin1),
     Case("An unknown bundled task", ("solve", "pendulum-ful", "--out", "{dir}/result.json")),
     Case("An unknown command-line option", SOLVE + ("--frobnicate",)),
     Case(
@@ -124,6 +139,17 @@ CASES = (
     ),
     Case("`--out` names a folder", ("solve", "{dir}/arm.toml", "--out", "{dir}")),
     Case("`--resume` from a folder without a checkpoint", SOLVE + ("--resume", "{dir}/nowhere")),
+    Case("`--resume` from an empty checkpoint.npz", SOLVE + ("--resume", "{dir}/ckpt"), setup=_checkpoint(b"")),
+    Case(
+        "`--resume` from a checkpoint.npz cut short",
+        SOLVE + ("--resume", "{dir}/ckpt"),
+        setup=_checkpoint(b"PK\x03\x04\x14\x00\x00\x00\x08\x00"),
+    ),
+    Case(
+        "`--resume` from a checkpoint.npz of other content",
+        SOLVE + ("--resume", "{dir}/ckpt"),
+        setup=_checkpoint(b"\x93NUMPY\x01\x00garbage" * 4),
+    ),
     Case("`--every` 0", SOLVE + ("--checkpoint", "{dir}/ckpt", "--every", "0")),
     Case(
         "A checkpoint folder that cannot be created",
@@ -197,14 +223,19 @@ and its model `arm.xml`, a one-link arm with a `tip_pos` sensor.
 """
 
 
+def page(outcomes: list[Outcome]) -> str:
+    """docs/bad_input.md: the header, the task file of the cases and the table."""
+    return HEADER.format(task=TASK.format(**GOOD_TASK)) + table(outcomes) + "\n"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", default=None, help="write the markdown page here")
     args = parser.parse_args(argv)
     outcomes = [run_case(c) for c in CASES]
-    text = HEADER.format(task=TASK.format(**GOOD_TASK)) + table(outcomes) + "\n"
+    text = page(outcomes)
     if args.write:
-        with open(args.write, "w") as f:
+        with open(args.write, "w", encoding="utf-8") as f:
             f.write(text)
         print(f"wrote {args.write} ({len(outcomes)} cases)", file=sys.stderr)
     else:

@@ -6,75 +6,94 @@ The least-squares fit differences rollouts that deviate from the nominal by
 significant digits of dz, too few for the fit (docs/algorithm.md measures it).
 Set ``PODILQR_X64=0`` before importing to keep JAX's float32 default.
 
-Compilation: importing the package also turns on JAX's persistent compilation
-cache in ``~/.cache/podilqr_jax/jax`` (``PODILQR_CACHE_DIR`` moves it,
-``PODILQR_CACHE=0`` switches it off; see ``cache``).
+Compilation: the package also turns on JAX's persistent compilation cache in
+``~/.cache/podilqr_jax/jax`` (``PODILQR_CACHE_DIR`` moves it, ``PODILQR_CACHE=0``
+switches it off, ``PODILQR_CACHE=read`` reads it without writing; see ``cache``).
+
+The public names below are imported on first use: ``import podilqr_jax`` itself
+loads neither JAX nor MuJoCo (``_runtime`` sets JAX up when they are).
 """
 
-import contextlib as _contextlib
-import io as _io
 import os as _os
+import sys as _sys
 
-import jax as _jax
+# float64 unless PODILQR_X64=0 (``_runtime`` says why). JAX is not imported
+# here: asking through its variable makes JAX start in float64 wherever it is
+# imported first; ``_runtime`` then sets it in JAX's config and restores the
+# variable.
+_X64_ASKED = _os.environ.get("PODILQR_X64", "1") != "0"
+_X64_VARIABLE_BEFORE = _os.environ.get("JAX_ENABLE_X64")
+if _X64_ASKED and "jax" not in _sys.modules:
+    _os.environ["JAX_ENABLE_X64"] = "1"
+if "jax" in _sys.modules:  # JAX is loaded already: set it up now (float64, the cache), at little cost
+    from . import _runtime  # noqa: E402,F401
 
-if _os.environ.get("PODILQR_X64", "1") != "0":
-    _jax.config.update("jax_enable_x64", True)
+_PUBLIC = {  # name -> the module that defines it, imported on first use
+    "EstimatorNoise": ".control.kalman",
+    "estimator_policy": ".control.kalman",
+    "identify_about_nominal": ".control.kalman",
+    "FeedbackPolicy": ".control.policy",
+    "PolicyState": ".control.policy",
+    "replan_episodes": ".control.replan",
+    "ConfigError": ".errors",
+    "ModelLoadError": ".errors",
+    "PodIlqrError": ".errors",
+    "TaskError": ".errors",
+    "ESTIMATORS": ".identify.estimators",
+    "fit_information_model_iv": ".identify.estimators",
+    "companion": ".identify.info_state",
+    "info_states": ".identify.info_state",
+    "linearise": ".identify.model_based",
+    "LinearModel": ".identify.sysid",
+    "fit_information_model": ".identify.sysid",
+    "BackwardResult": ".ilqr.backward",
+    "QuadraticCost": ".ilqr.backward",
+    "backward_pass": ".ilqr.backward",
+    "PAPER_SETTINGS": ".ilqr.config",
+    "VARIANTS": ".ilqr.config",
+    "SolverConfig": ".ilqr.config",
+    "IterationInfo": ".ilqr.result",
+    "Result": ".ilqr.result",
+    "Status": ".ilqr.result",
+    "load_result": ".ilqr.result",
+    "default_config": ".ilqr.solver",
+    "solve": ".ilqr.solver",
+    "solve_model_based": ".ilqr.solver",
+    "Record": ".ilqr.state",
+    "CacheInfo": ".sim.cache",
+    "cache_info": ".sim.cache",
+    "EpisodeNoise": ".sim.episodes",
+    "Episodes": ".sim.episodes",
+    "run_episodes": ".sim.episodes",
+    "EvaluateSettings": ".studies.evaluate",
+    "evaluate": ".studies.evaluate",
+    "Env": ".task.env",
+    "EnvData": ".task.env",
+    "EnvDims": ".task.env",
+    "NoiseModel": ".task.noise",
+    "resolve_model_path": ".task.package_files",
+    "TASKS": ".task.tasks",
+    "make_task": ".task.tasks",
+    "Animation": ".viz.animate",
+    "animate": ".viz.animate",
+}
 
-# Sets up JAX's persistent compilation cache on import (before anything compiles).
-from .sim import cache as _cache  # noqa: F401
 
-# MJX prints a note to stdout when its optional `warp` backend is absent; keep
-# stdout clean for the CLI's output.
-with _contextlib.redirect_stdout(_io.StringIO()):
-    from mujoco import mjx as _mjx  # noqa: F401
+def __getattr__(name: str):
+    """The public names, imported on first use (``import podilqr_jax`` stays light)."""
+    module = _PUBLIC.get(name)
+    if module is None:
+        raise AttributeError(f"module 'podilqr_jax' has no attribute {name!r}")
+    import importlib
 
-from .control.kalman import EstimatorNoise as EstimatorNoise
-from .control.kalman import estimator_policy as estimator_policy
-from .control.kalman import identify_about_nominal as identify_about_nominal
-from .control.policy import FeedbackPolicy as FeedbackPolicy
-from .control.policy import PolicyState as PolicyState
-from .control.replan import replan_episodes as replan_episodes
-from .errors import ConfigError as ConfigError
-from .errors import ModelLoadError as ModelLoadError
-from .errors import PodIlqrError as PodIlqrError
-from .errors import TaskError as TaskError
-from .identify.estimators import ESTIMATORS as ESTIMATORS
-from .identify.estimators import fit_information_model_iv as fit_information_model_iv
-from .identify.info_state import companion as companion
-from .identify.info_state import info_states as info_states
-from .identify.model_based import linearise as linearise
-from .identify.sysid import LinearModel as LinearModel
-from .identify.sysid import fit_information_model as fit_information_model
-from .ilqr.backward import BackwardResult as BackwardResult
-from .ilqr.backward import QuadraticCost as QuadraticCost
-from .ilqr.backward import backward_pass as backward_pass
-from .ilqr.config import PAPER_SETTINGS as PAPER_SETTINGS
-from .ilqr.config import VARIANTS as VARIANTS
-from .ilqr.config import SolverConfig as SolverConfig
-from .ilqr.result import IterationInfo as IterationInfo
-from .ilqr.result import Result as Result
-from .ilqr.result import Status as Status
-from .ilqr.result import load_result as load_result
-from .ilqr.solver import default_config as default_config
-from .ilqr.solver import solve as solve
-from .ilqr.solver import solve_model_based as solve_model_based
-from .ilqr.state import Record as Record
-from .sim.cache import CacheInfo as CacheInfo
-from .sim.cache import cache_info as cache_info
-from .sim.episodes import EpisodeNoise as EpisodeNoise
-from .sim.episodes import Episodes as Episodes
-from .sim.episodes import run_episodes as run_episodes
-from .studies.evaluate import EvaluateSettings as EvaluateSettings
-from .studies.evaluate import evaluate as evaluate
-from .task.env import Env as Env
-from .task.env import EnvData as EnvData
-from .task.env import EnvDims as EnvDims
-from .task.noise import NoiseModel as NoiseModel
-from .task.package_files import resolve_model_path as resolve_model_path
-from .task.tasks import TASKS as TASKS
-from .task.tasks import make_task as make_task
-from .viz.animate import Animation as Animation
-from .viz.animate import animate as animate
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list:
+    return sorted(set(globals()) | set(_PUBLIC))
+
 
 __version__ = "0.1.0"
 

@@ -22,7 +22,10 @@ paragraph and exit with status 2, without a traceback (docs/bad_input.md
 lists every case tried). Ctrl-C during ``podilqr solve`` writes the result
 after the last completed iteration and exits with status 130; so do a
 scheduler's SIGTERM, SIGHUP and SIGUSR1, exiting with 128 + the signal's
-number (143 for SIGTERM).
+number (143 for SIGTERM). XLA's and JAX's own log lines are kept out of the
+terminal unless ``--verbose`` (or ``PODILQR_VERBOSE=1``) asks for them. The
+module imports neither JAX nor MuJoCo until a command needs them, so
+``--help`` answers at once.
 """
 
 from __future__ import annotations
@@ -42,12 +45,14 @@ EXIT_INPUT_ERROR = 2
 def main(argv: Optional[Sequence[str]] = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["bench"]:
+        quiet_backends("--verbose" in argv)
         return _cmd_bench(argv[1:])
     parser = _parser()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return EXIT_INPUT_ERROR
+    quiet_backends(getattr(args, "verbose", False))
     from .errors import PodIlqrError
 
     try:
@@ -58,6 +63,23 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
         return 130
+
+
+VERBOSE_HELP = "show XLA's and JAX's own log lines and alarms (also PODILQR_VERBOSE=1)"
+
+
+def quiet_backends(verbose: bool) -> None:
+    """Keep XLA's and JAX's own alarms out of the terminal: XLA's C++ log lines
+    (such as "Constant folding an instruction is taking > 1s", an ERROR-level
+    line about compile time, not about the result) and the warnings of JAX's
+    logger. ``--verbose`` or ``PODILQR_VERBOSE=1`` keeps them, and so does a
+    ``TF_CPP_MIN_LOG_LEVEL`` the user set. Called before JAX is imported."""
+    if verbose or os.environ.get("PODILQR_VERBOSE", "0").strip().lower() not in ("", "0", "off", "false", "no"):
+        return
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    import logging
+
+    logging.getLogger("jax").setLevel(logging.ERROR)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -100,6 +122,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots or the motion GIF")
     p.add_argument("--quiet", action="store_true", help="no live progress")
+    p.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
     p.set_defaults(func=_cmd_solve)
     r = sub.add_parser("reproduce", help="reproduce the paper's noise study (Fig. 2) and a sigma sweep")
     add_size_flags(
@@ -111,6 +134,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--systems", default="pendulum,cartpole", help="comma-separated: pendulum, cartpole")
     r.add_argument("--no-sweep", action="store_true", help="skip the sigma sweep")
     r.add_argument("--out", default="runs/reproduce", help="output folder (summary.json, figures, table.md)")
+    r.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
     r.set_defaults(func=_cmd_reproduce)
     e = sub.add_parser("evaluate", help="Monte Carlo evaluation of a solve's controllers over noise levels")
     e.add_argument("result", help="a result JSON written by `podilqr solve --out`")
@@ -161,10 +185,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     e.add_argument("--seed", type=int, default=None, help="PRNG seed of the episodes' noise (default 0)")
     e.add_argument("--out", default="runs/evaluate", help="output folder (evaluate.json, evaluate.png, table.md)")
+    e.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
     e.set_defaults(func=_cmd_evaluate)
     a = sub.add_parser("animate", help="the motion of a solve as a GIF/MP4 (noisy episodes, side by side)")
     a.add_argument("result", help="a result JSON written by `podilqr solve --out`")
     a.add_argument("--out", default="motion.gif", help="the animation: .gif, or .mp4 where ffmpeg is installed")
+    a.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
     a.add_argument("--episodes", type=int, default=0, help="overlay N noisy closed-loop episodes of the policy")
     a.add_argument(
         "--noise",
@@ -204,7 +230,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _fail(message: str) -> None:
-    print(textwrap.fill("error: " + message, width=100), file=sys.stderr)
+    print(textwrap.fill("error: " + message, width=100, break_long_words=False, break_on_hyphens=False),
+          file=sys.stderr)
 
 
 def _parse_sets(items: Sequence[str]) -> dict[str, Any]:
@@ -445,7 +472,7 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
             payload["ratio_to_model_based"] = main_result.final_true_cost / reference.final_cost
             what = "true cost (noiseless, closed loop)" if main_result.noisy else "cost"
             print(f"POD-iLQR {what} / model-based cost: {payload['ratio_to_model_based']:.6f}", file=sys.stderr)
-    from .ilqr.result import write_json_atomic
+    from .atomic import write_json_atomic
 
     write_json_atomic(args.out, payload)
     print(f"wrote {args.out}", file=sys.stderr)
@@ -511,7 +538,7 @@ class _Progress:
             return
         stats = (
             f"it {info.iteration:4d}  cost {info.cost:12.6g}  alpha {info.alpha:6.3g}  "
-            f"mu {info.mu:8.2g}  |g| {info.grad_norm:8.2g}  {info.rollouts_per_s:9.0f} rollouts/s ({info.engine})"
+            f"mu {info.mu:8.2g}  |g| {_figure(info.grad_norm)}  {info.rollouts_per_s:9.0f} rollouts/s ({info.engine})"
         )
         if info.sigma == info.sigma:
             stats += f"  sigma {info.sigma:7.2g}"
@@ -527,6 +554,14 @@ class _Progress:
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:
             self.bar.stop()
+
+
+def _figure(x: float) -> str:
+    """A gradient norm for the progress line: past float's range (the costate of a
+    long horizon through an unstable nominal) is "overflow", none yet is "-"."""
+    if x == x and abs(x) != float("inf"):
+        return f"{x:8.2g}"
+    return f"{'overflow' if x == x else '-':>8}"
 
 
 if __name__ == "__main__":

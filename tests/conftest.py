@@ -8,8 +8,8 @@ the count to what one module needs (measured: ~10,000 after
 tests/test_properties.py alone).
 
 The suite has its own persistent compilation cache (``podilqr_jax.sim.cache``): a
-fresh folder per pytest run, set before any test module imports the package
-and removed at the end, so a module that compiles what an earlier one already
+fresh folder per pytest run (shared by its pytest-xdist workers), set before any
+test module imports the package and removed at the end, so a module that compiles what an earlier one already
 compiled loads it from disk, and the user's ~/.cache is left alone. Every run
 starts cold, so the tests stay correct without a cache. ``PODILQR_CACHE=0``
 switches it off.
@@ -22,10 +22,13 @@ import tempfile
 import jax
 import pytest
 
-_TEST_CACHE = None
+_TEST_CACHE = None  # the folder this process made (and removes at the end)
 if os.environ.get("PODILQR_CACHE", "1") != "0":
-    _TEST_CACHE = tempfile.mkdtemp(prefix="podilqr-pytest-jax-cache-")
-    os.environ["PODILQR_CACHE_DIR"] = _TEST_CACHE
+    # pytest-xdist's workers inherit the folder of the process that started them.
+    if not os.environ.get("PODILQR_PYTEST_CACHE"):
+        _TEST_CACHE = tempfile.mkdtemp(prefix="podilqr-pytest-jax-cache-")
+        os.environ["PODILQR_PYTEST_CACHE"] = _TEST_CACHE
+    os.environ["PODILQR_CACHE_DIR"] = os.environ["PODILQR_PYTEST_CACHE"]
 
 
 def pytest_unconfigure(config):

@@ -34,7 +34,7 @@ print(json.dumps({"costs": r.cost_history, "K": r.K.ravel().tolist(), "compiles"
 """
 
 
-def _run(code: str, tmp_path, **env_vars) -> dict:
+def _run(code: str, tmp_path, stderr_to: list | None = None, **env_vars) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in ("PODILQR_CACHE_DIR", "PODILQR_CACHE", "XDG_CACHE_HOME")}
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     env["HOME"] = str(tmp_path / "home")  # never the real ~/.cache
@@ -44,6 +44,8 @@ def _run(code: str, tmp_path, **env_vars) -> dict:
     out = subprocess.run([sys.executable, "-c", code], cwd=work, env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     assert list(work.iterdir()) == [], "something was written into the working directory"
+    if stderr_to is not None:
+        stderr_to.append(out.stderr)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -103,6 +105,28 @@ def test_warm_run_loads_from_disk_and_gives_the_same_result(tmp_path):
     assert warm["stages"] == {"exported": 0, "loaded": 7}
     assert len(os.listdir(os.path.join(folder, "podilqr-stages"))) == 7
 
+    # Two stage files swapped (or damaged): each is dropped with a line saying
+    # so and traced afresh, and the run gives the same numbers.
+    stage_dir = os.path.join(folder, "podilqr-stages")
+    a, b = sorted(os.listdir(stage_dir))[:2]
+    pa, pb = os.path.join(stage_dir, a), os.path.join(stage_dir, b)
+    os.rename(pa, pa + ".x")
+    os.rename(pb, pa)
+    os.rename(pa + ".x", pb)
+    swapped = _run(SOLVE, tmp_path, PODILQR_CACHE_DIR=folder, stderr_to=(err := []))
+    assert swapped["stages"] == {"exported": 2, "loaded": 5}
+    assert swapped["costs"] == cold["costs"] and swapped["K"] == cold["K"]
+    assert err[0].count("dropped the cached stage") == 2 and "another key" in err[0]
+
+    # A cache that is read and not written (PODILQR_CACHE=read, or a folder
+    # without write permission): everything loads, nothing is written.
+    before = sorted(os.listdir(folder)), sorted(os.listdir(stage_dir))
+    shared = _run(SOLVE, tmp_path, PODILQR_CACHE_DIR=folder, PODILQR_CACHE="read")
+    assert shared["stages"] == {"exported": 0, "loaded": 7}
+    assert shared["loads"] == shared["compiles"] == cold["compiles"]
+    assert shared["costs"] == cold["costs"] and shared["K"] == cold["K"]
+    assert (sorted(os.listdir(folder)), sorted(os.listdir(stage_dir))) == before
+
 
 def test_traced_stages_are_not_kept_without_the_package_cache(tmp_path):
     folder = tmp_path / "off"
@@ -124,6 +148,22 @@ def test_an_unwritable_folder_warns_and_runs_without_a_cache(tmp_path):
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["info"]["source"] == "unwritable" and got["dir"] is None
     assert "PODILQR_CACHE_DIR" in out.stderr and "PODILQR_CACHE=0" in out.stderr
+
+
+def test_a_folder_without_write_permission_is_read(tmp_path):
+    folder = tmp_path / "shared"
+    folder.mkdir()
+    # As root every folder is writable: the probe takes the permission away
+    # the way ``os.access`` reports it for another user.
+    code = (
+        "import os\n_access = os.access\n"
+        f"os.access = lambda p, m, **k: False if m & os.W_OK and str(p).startswith({str(folder)!r}) "
+        "else _access(p, m, **k)\n" + PROBE
+    )
+    got = _run(code, tmp_path, stderr_to=(err := []), PODILQR_CACHE_DIR=str(folder))
+    assert got["info"]["source"] == "podilqr" and got["info"]["read_only"] and got["dir"] == str(folder)
+    assert got["min_time"] > 1e20 and _entries(folder) == 0  # read, never written
+    assert "is read-only: reading it, writing nothing" in err[0] and err[0].count("podilqr_jax:") == 1
 
 
 def test_a_stage_key_hashes_the_source_of_every_subpackage():

@@ -186,3 +186,69 @@ def test_bench_bad_input_exits_2(tmp_path, capsys):
     assert main(["bench", "--sections", "grid,nope", "--out", str(tmp_path)]) == 2
     assert "--sections takes a comma-separated subset" in capsys.readouterr().err
     assert not (tmp_path / "bench.json").exists()
+
+
+def test_help_and_the_parsers_load_neither_jax_nor_mujoco():
+    """`podilqr --help` (and every command's help) answers without importing JAX or
+    MuJoCo: the package's names load on first use (podilqr_jax/__init__.py)."""
+    code = (
+        "import sys, contextlib, io\n"
+        "from podilqr_jax import cli\n"
+        "for argv in (['--help'], ['solve', '--help'], ['evaluate', '--help'], ['bench', '--help']):\n"
+        "    with contextlib.redirect_stdout(io.StringIO()):\n"
+        "        try:\n"
+        "            cli.main(argv)\n"
+        "        except SystemExit:\n"
+        "            pass\n"
+        "print(sorted(m for m in ('jax', 'mujoco') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
+def test_xla_log_lines_are_kept_out_unless_verbose(monkeypatch):
+    """XLA's C++ log lines (its slow-compile alarms, ERROR-level lines, among
+    them) are hidden by every command unless --verbose or PODILQR_VERBOSE=1:
+    quiet_backends raises TF_CPP_MIN_LOG_LEVEL to 3 before JAX loads, and a
+    level the user set is kept. That level 3 silences XLA's lines is shown on
+    its informational lines (TF_CPP_MAX_VLOG_LEVEL), which level 0 lets through."""
+    import logging
+
+    from podilqr_jax import cli
+
+    monkeypatch.setattr(logging.getLogger("jax"), "level", logging.getLogger("jax").level)  # restored afterwards
+    for verbose, variable, expected in ((False, None, "3"), (True, None, None), (False, "1", None)):
+        monkeypatch.delenv("TF_CPP_MIN_LOG_LEVEL", raising=False)
+        if variable is None:
+            monkeypatch.delenv("PODILQR_VERBOSE", raising=False)
+        else:
+            monkeypatch.setenv("PODILQR_VERBOSE", variable)
+        cli.quiet_backends(verbose=verbose)
+        assert os.environ.get("TF_CPP_MIN_LOG_LEVEL") == expected, (verbose, variable)
+    monkeypatch.setenv("TF_CPP_MIN_LOG_LEVEL", "0")
+    monkeypatch.delenv("PODILQR_VERBOSE", raising=False)
+    cli.quiet_backends(verbose=False)
+    assert os.environ["TF_CPP_MIN_LOG_LEVEL"] == "0"  # the user's own level is kept
+    assert logging.getLogger("jax").level == logging.ERROR
+
+    code = "import jax.numpy as jnp\nprint(float(jnp.ones(3).sum()))\n"
+    env = {k: v for k, v in os.environ.items() if k != "PODILQR_VERBOSE"}
+    env["TF_CPP_MAX_VLOG_LEVEL"] = "1"
+    runs = {
+        level: subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, env={**env, "TF_CPP_MIN_LOG_LEVEL": level},
+            timeout=120,
+        )
+        for level in ("3", "0")
+    }
+    assert all(r.returncode == 0 and r.stdout.strip() == "3.0" for r in runs.values())
+    assert runs["3"].stderr.strip() == ""
+    assert len(runs["0"].stderr.splitlines()) > 10  # the lines level 3 kept out
+
+
+def test_a_gradient_past_float_range_prints_as_overflow():
+    from podilqr_jax.cli import _figure
+
+    assert _figure(float("inf")).strip() == "overflow" and _figure(float("nan")).strip() == "-"
+    assert _figure(0.0015).strip() == "0.0015" and len(_figure(float("inf"))) == len(_figure(1.0))

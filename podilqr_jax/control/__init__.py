@@ -1,1 +1,3 @@
 """Control: a finished solve as a controller, the Kalman estimator, receding-horizon replanning."""
+
+from .. import _runtime  # noqa: E402,F401  (JAX set up before anything here traces)

@@ -22,13 +22,13 @@ import dataclasses
 import hashlib
 import json
 import os
-import tempfile
 import zipfile
 from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
+from ..atomic import write_atomic
 from ..errors import ConfigError
 from ..identify.sysid import LinearModel
 from .state import Nominal, Record, SolverState
@@ -103,17 +103,7 @@ def save_checkpoint(directory: str | os.PathLike, state: SolverState, print_: di
     arrays = {k: np.asarray(v) for k, v in arrays.items()}
     arrays["header"] = np.array(json.dumps(header, allow_nan=True))
     path = os.path.join(directory, FILE)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, lambda f: np.savez(f, **arrays), suffix=".npz", fsync=True)
     return path
 
 

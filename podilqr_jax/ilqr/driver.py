@@ -266,6 +266,8 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
     back_ok = bool(back.ok)
     st.mu = float(back.mu)
     grad_norm = float(np.max(np.abs(np.asarray(back.grad))))
+    if grad_norm != grad_norm:  # the costate overflowed float (a long horizon, an unstable nominal): inf - inf
+        grad_norm = float("inf")
     timing.add("backward", t0)
     record.grad_norm_history.append(grad_norm)
     record.mu_history.append(st.mu)

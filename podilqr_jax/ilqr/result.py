@@ -7,11 +7,11 @@ import enum
 import json
 import math
 import os
-import tempfile
 from typing import Any
 
 import numpy as np
 
+from ..atomic import write_json_atomic
 from .state import Record
 
 
@@ -249,35 +249,3 @@ def load_result(path: str | os.PathLike) -> Result:
         return Result.from_dict(d)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"The result file {os.fspath(path)!r} is malformed: {exc}.") from None
-
-
-def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
-    """Write ``obj`` as JSON to ``path`` through a temporary file renamed over it,
-    with the permissions a plain ``open(path, "w")`` would give (mkstemp's
-    file is owner-only)."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=directory)
-    umask = os.umask(0)
-    os.umask(umask)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(_jsonable(obj), f, indent=1)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, np.generic):
-        return _jsonable(obj.item())
-    return obj

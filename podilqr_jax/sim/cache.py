@@ -1,6 +1,6 @@
 """JAX's persistent compilation cache, on by default: compile once per machine, not per run.
 
-Importing the package points JAX's persistent compilation cache at a folder in
+The package points JAX's persistent compilation cache at a folder in
 the user's cache directory, so a second run of the same task (same shapes,
 same JAX, same machine) loads the solver's executables from disk instead of
 compiling them (docs/performance.md measures what it saves):
@@ -8,6 +8,9 @@ compiling them (docs/performance.md measures what it saves):
 - the folder: ``$PODILQR_CACHE_DIR`` when set, else
   ``$XDG_CACHE_HOME/podilqr_jax/jax``, else ``~/.cache/podilqr_jax/jax``;
 - ``PODILQR_CACHE=0`` switches it off (nothing is written anywhere);
+- a folder the user can read but not write (a shared, prepared cache) is
+  read and never written, with one line saying so; ``PODILQR_CACHE=read``
+  asks for that of any folder;
 - a cache the user configured for JAX (``JAX_COMPILATION_CACHE_DIR`` or
   ``jax.config.update("jax_compilation_cache_dir", ...)`` before importing
   the package, or ``jax_enable_compilation_cache=False``) is left as it is,
@@ -22,8 +25,10 @@ every new shape and is never pruned; delete it to start afresh. JAX treats the
 cache as trusted code, so the folder is created readable by its owner only.
 
 :func:`cache_info` says what was set up and what the folder holds.
-Importing this module (the package imports it before anything else that
-uses JAX) runs :func:`configure`.
+Importing this module runs :func:`configure`. The package imports it before
+any of its own programs trace (``podilqr_jax/_runtime.py``): on ``import
+podilqr_jax`` when JAX is loaded already, else on first use of a part that
+needs JAX.
 """
 
 from __future__ import annotations
@@ -45,8 +50,9 @@ class CacheInfo(NamedTuple):
 
     ``source``: ``"podilqr"`` (the package's folder), ``"jax"`` (a cache the
     user configured for JAX, left alone), ``"off"`` (``PODILQR_CACHE=0``, or
-    JAX's cache disabled), ``"unwritable"`` (the folder could not be created;
-    no cache).
+    JAX's cache disabled), ``"unwritable"`` (the folder could not be created or
+    read; no cache). ``read_only``: the package's folder is read but not
+    written.
     """
 
     enabled: bool
@@ -54,14 +60,20 @@ class CacheInfo(NamedTuple):
     source: str
     entries: int
     size_bytes: int
+    read_only: bool = False
 
 
-_state = {"directory": None, "source": "off"}
+_state = {"directory": None, "source": "off", "read_only": False}
 
 
 def switched_off(variable: str) -> bool:
     """Whether the environment variable ``variable`` says off (``0``, ``off``, ``false``, ``no``)."""
     return os.environ.get(variable, "1").strip().lower() in ("0", "off", "false", "no")
+
+
+def read_only_asked() -> bool:
+    """Whether ``PODILQR_CACHE=read`` asks for the cache to be read and never written."""
+    return os.environ.get(ENV_SWITCH, "").strip().lower() in ("read", "read-only", "ro")
 
 
 def default_cache_dir() -> str:
@@ -83,23 +95,34 @@ def configure() -> CacheInfo:
         _state.update(directory=jax.config.jax_compilation_cache_dir, source="jax")
     else:
         path = default_cache_dir()
+        asked = read_only_asked()
         try:
-            os.makedirs(path, mode=0o700, exist_ok=True)
-            writable = os.access(path, os.W_OK | os.X_OK)
+            if not asked:
+                os.makedirs(path, mode=0o700, exist_ok=True)
+            writable = not asked and os.access(path, os.W_OK | os.X_OK)
         except OSError:
             writable = False
-        if not writable:
+        readable = os.path.isdir(path) and os.access(path, os.R_OK | os.X_OK)
+        if writable or readable:
+            jax.config.update("jax_compilation_cache_dir", path)
+            jax.config.update("jax_persistent_cache_min_entry_size_bytes", MIN_ENTRY_SIZE_BYTES)
+            # A read-only folder is read; nothing compiles for long enough to be written to it.
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S if writable else 1e30)
+            _state.update(directory=path, source="podilqr", read_only=not writable)
+            if not writable and not asked:
+                warnings.warn(
+                    f"podilqr_jax: the compilation cache folder {path!r} is read-only: reading it, writing nothing.",
+                    stacklevel=2,
+                )
+        elif asked:
+            _state.update(directory=None, source="off")  # nothing there to read
+        else:
             _state.update(directory=path, source="unwritable")
             warnings.warn(
                 f"podilqr_jax: cannot write the compilation cache folder {path!r}, so every run compiles afresh. "
                 f"Point {ENV_DIR} at a writable folder, or set {ENV_SWITCH}=0 to silence this.",
                 stacklevel=2,
             )
-        else:
-            jax.config.update("jax_compilation_cache_dir", path)
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
-            jax.config.update("jax_persistent_cache_min_entry_size_bytes", MIN_ENTRY_SIZE_BYTES)
-            _state.update(directory=path, source="podilqr")
     return cache_info()
 
 
@@ -114,7 +137,7 @@ def cache_info() -> CacheInfo:
                 if entry.is_file() and entry.name.endswith("-cache"):
                     entries += 1
                     size += entry.stat().st_size
-    return CacheInfo(source in ("podilqr", "jax"), directory, source, entries, size)
+    return CacheInfo(source in ("podilqr", "jax"), directory, source, entries, size, bool(_state["read_only"]))
 
 
 configure()

@@ -41,12 +41,13 @@ import importlib.metadata
 import inspect
 import os
 import sys
-import tempfile
+import warnings
 from typing import Any, Callable, Optional, Sequence
 
 import jax
 import numpy as np
 
+from ..atomic import write_atomic
 from . import ahead, cache, xla_options
 
 FOLDER_NAME = "podilqr-stages"
@@ -202,28 +203,27 @@ def _key(name, static, treedef, avals) -> str:
     return h.hexdigest()
 
 
+MAGIC = b"podilqr-stage\0"  # a stage file: MAGIC, its key, NUL, the serialized program
+
+
 def _runner(name, fun, jitted, where, static, treedef, avals) -> Callable:
     """``jax.jit(exported.call)`` for this key, exporting it first where it is new."""
     try:
         key = _key(name, static, treedef, avals)
         path = os.path.join(where, key)
-        exported = None
-        if os.path.isfile(path):
-            try:
-                with open(path, "rb") as f:
-                    exported = jax.export.deserialize(bytearray(f.read()))
-                counts["loaded"] += 1
-            except Exception:  # a partial or foreign file: export afresh
-                exported = None
+        kwargs = dict(static)
+
+        def flat(*leaves):
+            return fun(**kwargs, **jax.tree_util.tree_unflatten(treedef, leaves))
+
+        specs = [jax.ShapeDtypeStruct(a.shape, a.dtype, weak_type=a.weak_type) for a in avals]
+        exported = _load(path, key, name, specs) if os.path.isfile(path) else None
         if exported is None:
-            kwargs = dict(static)
-
-            def flat(*leaves):
-                return fun(**kwargs, **jax.tree_util.tree_unflatten(treedef, leaves))
-
-            specs = [jax.ShapeDtypeStruct(a.shape, a.dtype, weak_type=a.weak_type) for a in avals]
             exported = jax.export.export(jax.jit(flat))(*specs)
-            _write(where, path, exported.serialize())
+            blob = MAGIC + key.encode() + b"\0" + exported.serialize()
+            if not cache._state["read_only"]:
+                os.makedirs(where, mode=0o700, exist_ok=True)
+                write_atomic(path, lambda f: f.write(blob))
             counts["exported"] += 1
         return xla_options.top_level(exported.call)
     except Exception as exc:  # noqa: BLE001 - any refusal means: run it as a plain jit
@@ -231,14 +231,29 @@ def _runner(name, fun, jitted, where, static, treedef, avals) -> Callable:
         return jitted
 
 
-def _write(where: str, path: str, blob: bytes) -> None:
-    os.makedirs(where, mode=0o700, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=where, prefix=".tmp-")
+def _load(path: str, key: str, name: str, specs) -> Optional[jax.export.Exported]:
+    """The stage program in ``path`` when it is this key's and takes these
+    arguments; else None, after one line saying the entry is dropped."""
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(blob)
-        os.replace(tmp, path)  # atomic: a concurrent reader sees the old file or the whole new one
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        with open(path, "rb") as f:
+            blob = f.read()
+        head = MAGIC + key.encode() + b"\0"
+        if not blob.startswith(head):
+            raise ValueError("it was written for another key (a file moved, swapped or damaged)")
+        exported = jax.export.deserialize(bytearray(blob[len(head) :]))
+        wanted = tuple((s.shape, s.dtype) for s in specs)
+        if tuple((a.shape, a.dtype) for a in exported.in_avals) != wanted:
+            raise ValueError("its program takes other arguments")
+    except Exception as exc:  # noqa: BLE001 - any fault of the file: trace afresh
+        reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+        warnings.warn(
+            f"podilqr_jax: dropped the cached stage {path!r} ({name}): {reason[:200]}; tracing it afresh.",
+            stacklevel=2,
+        )
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
+        return None
+    counts["loaded"] += 1
+    return exported

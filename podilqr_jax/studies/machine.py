@@ -11,15 +11,15 @@ import os
 import platform
 from typing import Any
 
-import jax
-import mujoco
-import numpy as np
-
 
 def describe() -> dict[str, Any]:
     """The CPU (its model name where /proc/cpuinfo has it), the core count, the
     platform, Python, JAX, jaxlib, MuJoCo and NumPy versions, the backend and
     its devices, and whether JAX runs in float64."""
+    import jax
+    import mujoco
+    import numpy as np
+
     devices = jax.devices()
     cpu = platform.processor() or platform.machine()
     try:

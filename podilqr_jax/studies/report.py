@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 from typing import Any, Callable, Mapping, Optional
 
-from ..ilqr.result import write_json_atomic
+from ..atomic import write_json_atomic
 from .machine import describe
 from .settings import Sized
 

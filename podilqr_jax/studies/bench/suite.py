@@ -60,7 +60,6 @@ import sys
 import time
 from typing import Any, Optional
 
-import jax
 import numpy as np
 
 import podilqr_jax as pj
@@ -160,6 +159,8 @@ def peak_host_mb() -> float:
 
 
 def peak_device_mb() -> Optional[float]:
+    import jax
+
     stats = jax.devices()[0].memory_stats() if jax.default_backend() != "cpu" else None
     return None if not stats else stats.get("peak_bytes_in_use", 0) / 2**20
 
@@ -276,6 +277,8 @@ def _child(args: list[str], env_extra: dict[str, str]) -> dict[str, Any]:
 def memory_child(task: str, batch: int) -> dict[str, Any]:
     """In a fresh process: one sysid batch of ``batch`` rollouts (n_avg = 10)
     under the default memory budget; time and peak RSS."""
+    import jax
+
     from podilqr_jax.identify.info_state import info_dim
     from podilqr_jax.sim.rollout import bytes_per_rollout, open_loop_policy, perturbation_rollouts
 
@@ -307,6 +310,8 @@ def memory_child(task: str, batch: int) -> dict[str, Any]:
 
 
 def devices_child(task: str, n_s: int, n_avg: int, iterations: int) -> dict[str, Any]:
+    import jax
+
     row = grid_cell(task, n_s, n_avg, iterations)
     row["devices"] = jax.device_count()
     return row
@@ -542,7 +547,8 @@ def format_summary(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
+def parser() -> argparse.ArgumentParser:
+    """The options of ``podilqr bench``."""
     parser = argparse.ArgumentParser(prog="podilqr bench", description=" ".join(__doc__.split("\n\n")[0].split()))
     add_size_flags(
         parser, quick="a small grid: a few minutes on a CPU", tiny="every section at the smallest size: a smoke test"
@@ -556,9 +562,16 @@ def main(argv=None) -> int:
         default=",".join(SECTIONS),
         help=f"comma-separated subset of {','.join(SECTIONS)} (others keep DIR/bench.json's values)",
     )
+    parser.add_argument(
+        "--verbose", action="store_true", help="show XLA's and JAX's own log lines and alarms (also PODILQR_VERBOSE=1)"
+    )
     parser.add_argument("--memory-child", nargs=2, metavar=("TASK", "BATCH"), help=argparse.SUPPRESS)
     parser.add_argument("--devices-child", nargs=4, metavar=("TASK", "N_S", "N_AVG", "IT"), help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
     if args.memory_child:
         print(json.dumps(memory_child(args.memory_child[0], int(args.memory_child[1]))))
         return 0
