@@ -230,8 +230,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _fail(message: str) -> None:
-    print(textwrap.fill("error: " + message, width=100, break_long_words=False, break_on_hyphens=False),
-          file=sys.stderr)
+    print(
+        textwrap.fill("error: " + message, width=100, break_long_words=False, break_on_hyphens=False), file=sys.stderr
+    )
 
 
 def _parse_sets(items: Sequence[str]) -> dict[str, Any]:

@@ -140,6 +140,7 @@ def test_tasks_lists_the_bundled_tasks(capsys):
         assert row[2:6] == [str(d.nx), str(d.nz), str(d.nu), str(d.horizon)], row
 
 
+@pytest.mark.slow
 def test_bench_tiny_runs_every_section_from_the_installed_package(tmp_path):
     """`podilqr bench --tiny` (the smoke test of the command): every section at
     the smallest size, run from outside the source tree, so it needs only the
@@ -237,7 +238,10 @@ def test_xla_log_lines_are_kept_out_unless_verbose(monkeypatch):
     env["TF_CPP_MAX_VLOG_LEVEL"] = "1"
     runs = {
         level: subprocess.run(
-            [sys.executable, "-c", code], capture_output=True, text=True, env={**env, "TF_CPP_MIN_LOG_LEVEL": level},
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            env={**env, "TF_CPP_MIN_LOG_LEVEL": level},
             timeout=120,
         )
         for level in ("3", "0")

@@ -112,9 +112,16 @@ def _assert_close(model, reference, rel):
         assert np.max(np.abs(a - b)) <= rel * np.max(np.abs(a))
 
 
-def test_the_jacobians_one_at_a_time_equal_the_batched_ones_at_an_active_contact(tmp_path):
-    dims, data, x_bar, u_bar = _resting_arm(tmp_path)
-    batched = pj.linearise(dims, data, x_bar, u_bar)
+@pytest.fixture(scope="module")
+def resting_arm(tmp_path_factory):
+    """The pyramidal-cone resting arm and its exact (forward-mode, batched)
+    linearisation, shared by the tests that need both (one compile)."""
+    dims, data, x_bar, u_bar = _resting_arm(tmp_path_factory.mktemp("arm"))
+    return dims, data, x_bar, u_bar, pj.linearise(dims, data, x_bar, u_bar)
+
+
+def test_the_jacobians_one_at_a_time_equal_the_batched_ones_at_an_active_contact(resting_arm):
+    dims, data, x_bar, u_bar, batched = resting_arm
     looped = pj.linearise(dims, data, x_bar, u_bar, one_at_a_time=True)
     _assert_close(looped, batched, LOOP_VS_BATCH_REL)
     # The contact is in the Jacobian: lifted off the floor (the mass matrix
@@ -150,9 +157,8 @@ def test_central_differences_equal_forward_mode_on_a_smooth_model(task):
     _assert_close(pj.linearise(dims, data, x_bar, u_bar, jacobian="differences"), exact, DIFFERENCES_VS_EXACT_REL)
 
 
-def test_central_differences_are_finite_where_the_elliptic_cone_makes_forward_mode_nan(tmp_path):
-    dims, data, x_bar, u_bar = _resting_arm(tmp_path)
-    exact = pj.linearise(dims, data, x_bar, u_bar)
+def test_central_differences_are_finite_where_the_elliptic_cone_makes_forward_mode_nan(resting_arm, tmp_path):
+    dims, data, x_bar, u_bar, exact = resting_arm
     differences = pj.linearise(dims, data, x_bar, u_bar, jacobian="differences")
     _assert_close(differences, exact, DIFFERENCES_VS_EXACT_REL)  # at an active contact, pyramidal cone
     _assert_close(pj.linearise(dims, data, x_bar, u_bar, True, "differences"), differences, LOOP_VS_BATCH_REL)

@@ -70,6 +70,7 @@ def _launch(n: int, tmp_path) -> list[dict]:
     return outs
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(_jax, "make_gloo_tcp_collectives"), reason="this jaxlib has no gloo CPU collectives")
 def test_two_processes_give_the_single_process_result(tmp_path):
     one = _launch(1, tmp_path)[0]

@@ -31,6 +31,7 @@ ROW_KEYS = {
 }
 
 
+@pytest.mark.slow
 def test_reproduce_writes_summary_figures_and_table(tmp_path, capsys):
     """`podilqr reproduce --tiny` (the CLI's smoke test): every panel and the sweep."""
     assert main(["reproduce", "--tiny", "--systems", "pendulum", "--out", str(tmp_path)]) == 0

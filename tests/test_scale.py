@@ -105,6 +105,7 @@ def _run(devices: int) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_sharded_over_four_devices_gives_the_same_result():
     """Same seed, same result on 1 and on 4 devices, to round-off: each device
     runs a quarter of the batch, and XLA's CPU code for a batch of 4 rollouts

@@ -27,12 +27,22 @@ pytestmark = pytest.mark.slow
 # first / final cost >= 11.3 (pendulum-full; bound 10, set by the start and the optimum, not by a draw).
 
 
-@pytest.mark.parametrize("task", pj.TASKS)
+# The partially observed cart-pole's swing-up is README.md's first example: tests/test_docs_examples.py
+# runs that block as written and checks its result here (one solve for both).
+README_TASK = "cartpole-partial"
+
+
+@pytest.mark.parametrize("task", [t for t in pj.TASKS if t != README_TASK])
 def test_swing_up_matches_model_based_optimum(task):
     env = pj.make_task(task)
     cfg = pj.default_config(env)
-    pod = pj.solve(env, cfg)
-    ref = pj.solve_model_based(env, cfg)
+    check_swing_up(env, pj.solve(env, cfg), pj.solve_model_based(env, cfg))
+
+
+def check_swing_up(env, pod, ref):
+    """POD-iLQR's solve ``pod`` of ``env`` against the model-based ``ref`` from
+    the same default settings: within 0.1% of it, upright, in its box."""
+    task = env.name
     ok = (pj.Status.CONVERGED, pj.Status.MAX_ITERATIONS)
     assert pod.status in ok, pod.summary()
     assert ref.status in ok, ref.summary()

@@ -35,10 +35,17 @@ def _cache_contents(path: str) -> tuple[int, int]:
 
 
 def solve_in_fresh_process(
-    task: str, mode: str, cache_dir: str, out_dir: str, sets: Sequence[str] = (), timeout: float = 1800
+    task: str,
+    mode: str,
+    cache_dir: str,
+    out_dir: str,
+    sets: Sequence[str] = (),
+    timeout: float = 1800,
+    compare: bool = True,
 ) -> dict[str, Any]:
     """One ``podilqr solve TASK --compare`` in a new process; ``mode`` is
-    ``off`` (``PODILQR_CACHE=0``) or ``cold``/``warm`` (cache in ``cache_dir``)."""
+    ``off`` (``PODILQR_CACHE=0``) or ``cold``/``warm`` (cache in ``cache_dir``).
+    ``compare=False`` leaves out ``--compare`` (POD-iLQR alone)."""
     env = dict(os.environ)
     env.pop("JAX_COMPILATION_CACHE_DIR", None)  # the package's own cache, not one configured for JAX
     if mode == "off":
@@ -47,7 +54,8 @@ def solve_in_fresh_process(
         env["PODILQR_CACHE"] = "1"
         env["PODILQR_CACHE_DIR"] = cache_dir
     out = os.path.join(out_dir, f"{mode}.json")
-    cmd = [sys.executable, "-m", "podilqr_jax.cli", "solve", task, "--compare", "--no-plots", "--quiet", "--out", out]
+    cmd = [sys.executable, "-m", "podilqr_jax.cli", "solve", task, *(["--compare"] if compare else [])]
+    cmd += ["--no-plots", "--quiet", "--out", out]
     for s in sets:
         cmd += ["--set", s]
     t0 = time.perf_counter()
@@ -77,11 +85,12 @@ def solve_in_fresh_process(
 
 
 def cold_warm(
-    task: str = "cartpole-partial", sets: Sequence[str] = (), workdir: Optional[str] = None
+    task: str = "cartpole-partial", sets: Sequence[str] = (), workdir: Optional[str] = None, compare: bool = True
 ) -> dict[str, Any]:
     """Cache off, cold and warm runs of ``podilqr solve TASK --compare``, one
     fresh process each, in that order; with the ratios warm / cold and
     warm / off of the process wall time and of the total compile time.
+    ``compare=False`` runs POD-iLQR alone (``podilqr bench --tiny``).
 
     ``workdir`` (default: a temporary folder, removed afterwards) holds the
     cache folder and the result JSONs. The target of issue 16 is a warm
@@ -92,11 +101,11 @@ def cold_warm(
         cache_dir = os.path.join(workdir, "jax-cache")
         if os.path.exists(cache_dir):
             shutil.rmtree(cache_dir)
-        rows = [solve_in_fresh_process(task, mode, cache_dir, workdir, sets) for mode in MODES]
+        rows = [solve_in_fresh_process(task, mode, cache_dir, workdir, sets, compare=compare) for mode in MODES]
     finally:
         if own:
             shutil.rmtree(workdir, ignore_errors=True)
-    report: dict[str, Any] = {"task": task, "sets": list(sets), "runs": rows}
+    report: dict[str, Any] = {"task": task, "sets": list(sets), "compare": compare, "runs": rows}
     by = {r["mode"]: r for r in rows if "error" not in r}
     if {"cold", "warm"} <= set(by):
         cold, warm = by["cold"], by["warm"]

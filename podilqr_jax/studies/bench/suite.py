@@ -87,6 +87,7 @@ class BenchSettings(Sized):
     device_cell: tuple[int, int] = (256, 4)
     cache_task: str = "cartpole-partial"
     cache_sets: tuple[str, ...] = ()
+    cache_compare: bool = True
     ls_memory_task: str = "cartpole-partial"
     ls_memory_n_forward: int = 10_000
     ls_memory_chunks: tuple[Optional[int], ...] = (None, 22_000, 10_000, 5_000)
@@ -134,6 +135,7 @@ class BenchSettings(Sized):
             device_cell=(8, 2),
             cache_task="pendulum-full",
             cache_sets=("horizon=8", "max_iterations=2"),
+            cache_compare=False,
             ls_memory_task="pendulum-full",
             ls_memory_n_forward=20,
             ls_memory_chunks=(None, 44),
@@ -445,13 +447,14 @@ def run_cache(settings: BenchSettings, progress) -> dict[str, Any]:
     compilation cache off, cold and warm (``compile_cache.cold_warm``)."""
     from .compile_cache import cold_warm
 
-    report = cold_warm(settings.cache_task, settings.cache_sets)
+    report = cold_warm(settings.cache_task, settings.cache_sets, compare=settings.cache_compare)
+    solve = f"{settings.cache_task}{' --compare' if settings.cache_compare else ''}"
     for row in report["runs"]:
         if "error" in row:
             progress(f"cache {row['mode']}: {row['error']}")
         else:
             progress(
-                f"cache {row['mode']:4s}: {settings.cache_task} --compare {row['process_wall_s']:.1f} s "
+                f"cache {row['mode']:4s}: {solve} {row['process_wall_s']:.1f} s "
                 f"in the process, compiling {row['compile_s_total']:.1f} s"
             )
     return report
