@@ -94,7 +94,10 @@ def _parser() -> argparse.ArgumentParser:
         help="pod-ilqr (the default: from rollouts alone) or model-based (iLQR on the model's derivatives)",
     )
     p.add_argument(
-        "--compare", action="store_true", help="also run the model-based reference and report the cost ratio"
+        "--compare",
+        action="store_true",
+        help="also run the model-based reference and report the cost ratio "
+        "(and, 1%% or more apart, where the two trajectories part)",
     )
     p.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="a solver setting or `horizon` (repeatable)"
@@ -473,6 +476,11 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
             payload["ratio_to_model_based"] = main_result.final_true_cost / reference.final_cost
             what = "true cost (noiseless, closed loop)" if main_result.noisy else "cost"
             print(f"POD-iLQR {what} / model-based cost: {payload['ratio_to_model_based']:.6f}", file=sys.stderr)
+            if not main_result.noisy and abs(payload["ratio_to_model_based"] - 1.0) > BASIN_RATIO:
+                gap = main_result.largest_state_gap(reference)
+                payload["largest_state_gap"] = gap
+                both = main_result.converged and reference.converged
+                print(_apart(payload["ratio_to_model_based"], gap, both), file=sys.stderr)
     from .atomic import write_json_atomic
 
     write_json_atomic(args.out, payload)
@@ -494,6 +502,22 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
         print(f"interrupted{by}: {args.out} holds the result after the last completed iteration", file=sys.stderr)
         return interrupts.exit_status
     return 1 if main_result.status in (pj.Status.NONFINITE, pj.Status.NO_RESPONSE) else 0
+
+
+# Noiseless costs further apart than this (relative) are not one optimum reached twice.
+BASIN_RATIO = 0.01
+
+
+def _apart(ratio: float, gap: dict, both_converged: bool) -> str:
+    """The line `--compare` prints when the two solvers' costs differ by more than BASIN_RATIO:
+    where their trajectories part most, and whether both converged (two local minima)."""
+    which = "above" if ratio > 1 else "below"
+    return (
+        f"POD-iLQR ends {abs(ratio - 1):.1%} {which} the model-based solve"
+        f"{', both converged: two local minima (basins)' if both_converged else ''}; their trajectories are "
+        f"farthest apart in {gap['state']} at step {gap['step']} (POD-iLQR {gap['this']:.4g}, "
+        f"model-based {gap['other']:.4g})"
+    )
 
 
 def _solve_animation(result, env, path: str) -> str:

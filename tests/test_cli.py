@@ -8,6 +8,7 @@ import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from podilqr_jax.cli import main
@@ -41,6 +42,29 @@ def test_solve_task_file_with_compare(tmp_path):
     assert payload["task"] == "my-pendulum" and payload["q"] == 2
     assert payload["model_based_cost"] > 0 and payload["ratio_to_model_based"] > 0
     assert not (tmp_path / "r_cost.png").exists()
+
+
+def test_compare_says_where_two_solves_part_when_their_costs_differ(tmp_path, capsys):
+    """Noiseless costs more than 1% apart: --compare prints where the two
+    nominal trajectories are farthest apart and writes it to the JSON. Here a
+    huge fixed sigma (1 rad) makes the identified model poor for two iterations."""
+    from podilqr_jax.cli import _apart
+
+    out = tmp_path / "r.json"
+    sets = ["max_iterations=2", "sigma=1", "adapt_sigma=false"]
+    argv = ["solve", "pendulum-full", "--compare", "--quiet", "--no-plots", "--out", str(out)]
+    assert main(argv + [a for s in sets for a in ("--set", s)]) == 0
+    payload = json.loads(out.read_text())
+    assert abs(payload["ratio_to_model_based"] - 1) > 0.01
+    gap = payload["largest_state_gap"]
+    pod, ref = np.asarray(payload["states"]), np.asarray(payload["model_based"]["states"])
+    assert gap["gap"] == np.max(np.abs(pod - ref)) == abs(gap["this"] - gap["other"])
+    assert gap["this"] == pod[gap["step"], payload["state_labels"].index(gap["state"])]
+    err = capsys.readouterr().err
+    assert f"farthest apart in {gap['state']} at step {gap['step']}" in err
+    assert "two local minima" not in err  # neither converged in two iterations
+    both = _apart(1.343, {**gap, "state": "qpos:shoulder"}, both_converged=True)
+    assert both.startswith("POD-iLQR ends 34.3% above the model-based solve, both converged: two local minima")
 
 
 def test_task_file_on_a_model_that_is_not_bundled(tmp_path, capsys):

@@ -134,6 +134,26 @@ class Result:
 
         return animate(self, path, env=env, **options)
 
+    def largest_state_gap(self, other: "Result") -> dict[str, Any]:
+        """Where this solve's nominal trajectory is farthest from ``other``'s
+        (both of one task): the state entry and control step of the largest
+        |x_t - x'_t|, with both values. Two solves whose costs differ by more
+        than round-off and whose trajectories part by a swing's width ended in
+        different local minima (basins)."""
+        a, b = np.asarray(self.states, dtype=float), np.asarray(other.states, dtype=float)
+        if a.shape != b.shape:
+            raise ValueError(f"the two results' states differ in shape: {a.shape} and {b.shape} (not one task?)")
+        gap = np.abs(a - b)
+        step, entry = np.unravel_index(int(np.argmax(gap)), gap.shape)
+        labels = self.state_labels or other.state_labels
+        return {
+            "gap": float(gap[step, entry]),
+            "state": labels[entry] if entry < len(labels) else f"x[{entry}]",
+            "step": int(step),
+            "this": float(a[step, entry]),
+            "other": float(b[step, entry]),
+        }
+
     @property
     def converged(self) -> bool:
         return self.status == Status.CONVERGED
