@@ -113,10 +113,23 @@ def _alive(pid: int) -> bool:
 def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
     """Write ``obj`` as JSON to ``path`` whole or not at all (``atomic.write_atomic``),
     with the permissions a plain ``open(path, "w")`` would give."""
-    umask = os.umask(0)
-    os.umask(umask)
     text = json.dumps(_jsonable(obj), indent=1).encode()
-    write_atomic(path, lambda f: f.write(text), suffix=".json", mode=0o666 & ~umask)
+    write_atomic(path, lambda f: f.write(text), suffix=".json", mode=0o666 & ~_umask())
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux reports it
+    (setting it, even for a moment, would race the threads that create files)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return umask
 
 
 def _jsonable(obj: Any) -> Any:

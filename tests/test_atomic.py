@@ -57,3 +57,14 @@ def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):
         pass
     assert [p.name for p in tmp_path.iterdir()] == ["result.json"]
     assert json.loads(target.read_text()) == {"cost": 1.0}
+
+
+def test_a_json_gets_the_permissions_open_would_give_and_the_umask_stays(tmp_path):
+    before = os.umask(0o027)
+    try:
+        assert atomic._umask() == 0o027
+        write_json_atomic(tmp_path / "r.json", {"cost": 1.0})
+        assert (tmp_path / "r.json").stat().st_mode & 0o777 == 0o640
+        assert os.umask(0o027) == 0o027  # read, not changed
+    finally:
+        os.umask(before)
