@@ -147,3 +147,18 @@ def test_the_task_file_guide_runs_as_written(tmp_path):
     assert reacher.status.value == status and abs(reacher.final_cost - float(final)) < 1e-4 * float(final)
     pendulum = json.loads((tmp_path / "runs/my_pendulum/result.json").read_text())
     assert pendulum["status"] == "converged" and pendulum["ratio_to_model_based"] < 1.001
+
+
+def test_every_environment_variable_of_the_package_is_in_the_table():
+    """docs/environment.md lists every PODILQR_* variable the package reads,
+    and nothing the package does not read."""
+    package = os.path.join(ROOT, "podilqr_jax")
+    read = set()
+    for folder, _, names in os.walk(package):
+        for name in names:
+            if name.endswith(".py"):
+                with open(os.path.join(folder, name), encoding="utf-8") as f:
+                    read |= set(re.findall(r"PODILQR_[A-Z0-9_]+", f.read()))
+    with open(os.path.join(ROOT, "docs", "environment.md"), encoding="utf-8") as f:
+        listed = set(re.findall(r"^\| `(PODILQR_[A-Z0-9_]+)`", f.read(), re.M))
+    assert read == listed, f"read but not listed: {sorted(read - listed)}; listed but not read: {sorted(listed - read)}"
