@@ -62,23 +62,14 @@ def _settings(toml: str) -> list[str]:
     return [line for line in lines if line]
 
 
-@contextlib.contextmanager
-def cwd(path):
-    before = os.getcwd()
-    os.chdir(path)
-    try:
-        yield
-    finally:
-        os.chdir(before)
-
-
 @pytest.mark.slow
-def test_the_readme_python_blocks_run_as_written():
+def test_the_readme_python_blocks_run_as_written(monkeypatch):
     python = [(text, line) for lang, text, line in blocks("README.md") if lang == "python"]
     assert len(python) == 4, "a Python block was added to README.md: say here what it must show"
     ns: dict = {}
     after = []
-    with cwd(ROOT), contextlib.redirect_stdout(io.StringIO()):
+    monkeypatch.chdir(ROOT)
+    with contextlib.redirect_stdout(io.StringIO()):
         for text, line in python:
             exec(compile(text, f"README.md:{line}", "exec"), ns)
             after.append(dict(ns))
@@ -98,7 +89,7 @@ def test_the_readme_python_blocks_run_as_written():
     np.testing.assert_allclose(np.asarray(after[3]["u"]), noisy.controls[0], atol=1e-9)
 
 
-def test_every_readme_command_is_taken_by_the_cli(tmp_path):
+def test_every_readme_command_is_taken_by_the_cli():
     from podilqr_jax.studies.bench.suite import parser as bench_parser
 
     seen = set()
@@ -117,7 +108,7 @@ def test_every_readme_command_is_taken_by_the_cli(tmp_path):
     assert "cartpole-partial" in out.getvalue()
 
 
-def test_the_task_file_guide_runs_as_written(tmp_path):
+def test_the_task_file_guide_runs_as_written(tmp_path, monkeypatch):
     import importlib.util
 
     from podilqr_jax.ilqr.result import load_result
@@ -139,9 +130,9 @@ def test_the_task_file_guide_runs_as_written(tmp_path):
                     assert os.path.isfile(resolve_model_path(model[0]))
     os.symlink(os.path.join(ROOT, "examples"), tmp_path / "examples")
     shown = [text for lang, text, _ in docs if lang == "" and " on reacher: " in text]
-    with cwd(tmp_path):
-        for argv in commands("docs/task_files.md"):
-            assert cli.main(argv) == 0, argv
+    monkeypatch.chdir(tmp_path)
+    for argv in commands("docs/task_files.md"):
+        assert cli.main(argv) == 0, argv
     reacher = load_result(tmp_path / "runs/reacher/result.json")
     status, final = re.search(r"on reacher: (\w+) after .*?cost \S+ -> (\S+);", " ".join(shown[0].split())).groups()
     assert reacher.status.value == status and abs(reacher.final_cost - float(final)) < 1e-4 * float(final)

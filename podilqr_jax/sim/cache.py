@@ -71,6 +71,11 @@ def switched_off(variable: str) -> bool:
     return os.environ.get(variable, "1").strip().lower() in ("0", "off", "false", "no")
 
 
+def read_only() -> bool:
+    """Whether the package's cache folder is read and never written (read-only, or ``PODILQR_CACHE=read``)."""
+    return bool(_state["read_only"])
+
+
 def read_only_asked() -> bool:
     """Whether ``PODILQR_CACHE=read`` asks for the cache to be read and never written."""
     return os.environ.get(ENV_SWITCH, "").strip().lower() in ("read", "read-only", "ro")
@@ -137,7 +142,7 @@ def cache_info() -> CacheInfo:
                 if entry.is_file() and entry.name.endswith("-cache"):
                     entries += 1
                     size += entry.stat().st_size
-    return CacheInfo(source in ("podilqr", "jax"), directory, source, entries, size, bool(_state["read_only"]))
+    return CacheInfo(source in ("podilqr", "jax"), directory, source, entries, size, read_only())
 
 
 configure()

@@ -221,7 +221,7 @@ def _runner(name, fun, jitted, where, static, treedef, avals) -> Callable:
         if exported is None:
             exported = jax.export.export(jax.jit(flat))(*specs)
             blob = MAGIC + key.encode() + b"\0" + exported.serialize()
-            if not cache._state["read_only"]:
+            if not cache.read_only():
                 os.makedirs(where, mode=0o700, exist_ok=True)
                 write_atomic(path, lambda f: f.write(blob))
             counts["exported"] += 1

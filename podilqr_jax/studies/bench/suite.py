@@ -63,6 +63,7 @@ from typing import Any, Optional
 import numpy as np
 
 import podilqr_jax as pj
+from podilqr_jax.cli import VERBOSE_HELP
 from podilqr_jax.studies.report import header, write
 from podilqr_jax.studies.settings import Sized, add_size_flags, check_writable, parse_names, size_of
 
@@ -565,9 +566,7 @@ def parser() -> argparse.ArgumentParser:
         default=",".join(SECTIONS),
         help=f"comma-separated subset of {','.join(SECTIONS)} (others keep DIR/bench.json's values)",
     )
-    parser.add_argument(
-        "--verbose", action="store_true", help="show XLA's and JAX's own log lines and alarms (also PODILQR_VERBOSE=1)"
-    )
+    parser.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
     parser.add_argument("--memory-child", nargs=2, metavar=("TASK", "BATCH"), help=argparse.SUPPRESS)
     parser.add_argument("--devices-child", nargs=4, metavar=("TASK", "N_S", "N_AVG", "IT"), help=argparse.SUPPRESS)
     return parser
