@@ -21,11 +21,12 @@ designer's allowance on the output equation:
 
   cov(e_t) = model_error tr(Theta_u diag(sa^2) Theta_u') / nz I   (what the
              linear model misses, a share of the actuator term)
-           + sw^2 C C'                       (process noise on the observed
-                                              coordinates)
+           + sw^2 C J J' C'                  (process noise on the observed
+                                              coordinates; J the tangent basis,
+                                              the identity on hinges and slides)
   R        = diag(sv^2)
 
-and the prior of dY_0 puts the start deviation's covariance s0^2 C C' on each
+and the prior of dY_0 puts the start deviation's covariance s0^2 C J J' C' on each
 of the q identical observation slots of the rest history. These are the
 noise levels the designer states (the evaluation passes the levels it runs),
 not estimated from data; the approximations (white e_t, process noise on the
@@ -53,6 +54,7 @@ from ..identify.sysid import LinearModel
 from ..ilqr.config import SolverConfig
 from ..ilqr.result import Status
 from ..ilqr.state import Nominal
+from ..sim import tangent
 from ..sim.rollout import on_device, open_loop_policy, rollout_batch
 from ..task.env import Env
 from .policy import FeedbackPolicy
@@ -140,6 +142,10 @@ def estimator_policy(
     nz, nu, q = policy.nz, policy.nu, policy.q
     nZ = policy.info_dim
     C = np.asarray(env.data.C)
+    # State noise is drawn in the tangent space (sim.tangent): its covariance
+    # in the observations is s^2 C J J' C', J the tangent basis at the start
+    # state (at every step, an approximation on a free or ball joint).
+    CJ = C if not env.dims.quats else C @ np.asarray(tangent.basis(env.dims, env.data.x0))
     sa = np.broadcast_to(np.asarray(noise.actuator, float), (nu,))
     sv = np.broadcast_to(np.asarray(noise.measurement, float), (nz,))
     # The actuator noise a_t enters like the control: through B_t into the
@@ -148,11 +154,11 @@ def estimator_policy(
     B = np.asarray(model.B)  # [T, nZ, nu]
     W = np.einsum("tij,j,tkj->tik", B, sa**2, B)
     spread = noise.model_error * np.trace(W[:, :nz, :nz], axis1=1, axis2=2) / nz
-    W_z = spread[:, None, None] * np.eye(nz) + noise.process**2 * (C @ C.T) + JITTER * np.eye(nz)
+    W_z = spread[:, None, None] * np.eye(nz) + noise.process**2 * (CJ @ CJ.T) + JITTER * np.eye(nz)
     W[:, :nz, :nz] += W_z
     R = np.diag(sv**2) + JITTER * np.eye(nz)
     P0 = np.zeros((nZ, nZ))
-    P0[: q * nz, : q * nz] = np.kron(np.ones((q, q)), noise.initial**2 * (C @ C.T) + JITTER * np.eye(nz))
+    P0[: q * nz, : q * nz] = np.kron(np.ones((q, q)), noise.initial**2 * (CJ @ CJ.T) + JITTER * np.eye(nz))
     L, _ = kalman_gains(model.A, jnp.asarray(W), jnp.asarray(R), jnp.asarray(P0))
     ctrl = policy.controller._replace(F=jnp.asarray(model.A), G=jnp.asarray(model.B), L=L)
     return dataclasses.replace(policy, controller=ctrl, estimator="kalman", name=name)

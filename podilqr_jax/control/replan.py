@@ -41,6 +41,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..ilqr.config import SolverConfig
 from ..ilqr.solver import solve
+from ..sim import tangent
 from ..sim.compile_watch import CompileWatch
 from ..sim.episodes import EpisodeNoise, Episodes, run_segment, summarise
 from ..task.env import Env
@@ -93,7 +94,7 @@ def replan_episodes(
     segments = -(-T // every)
     noise = sample(key, levels.noise, episodes, segments * every)
     dims, data = train_env.dims, train_env.data
-    x = np.asarray(data.x0)[None] + np.asarray(noise.dx0)
+    x = np.asarray(tangent.integrate(dims, data.x0[None], noise.dx0))
     plans = [np.asarray(result.controls)] * episodes
     policies = [base] * episodes
     zs, us, xs = [], [], []

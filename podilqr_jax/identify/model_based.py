@@ -11,6 +11,14 @@ direction, in one of two ways (``JACOBIANS``):
   the step size that balances the truncation error (h^2) against round-off
   (eps / h); MuJoCo's own ``mjd_transitionFD`` differentiates so.
 
+On a model with a free or ball joint the state's directions are those of its
+tangent space (``sim.tangent``), 2 nv of them: x_bar (+) h e_j and the
+difference f(+) (-) f(-) as ``mj_integratePos`` and ``mj_differentiatePos``
+form them (forward mode: along the tangent basis J, read back through J+),
+and (A~_t, B~_t) on the tangent space are carried back to the full state as
+A_t = J_{t+1} A~_t J+_t, B_t = J_{t+1} B~_t. A quaternion's four entries are
+never perturbed one by one, off the unit sphere.
+
 The model-based iLQR runs the same backward pass and line search on it; it is
 the reference optimum for tests, benchmarks and the noisy studies.
 
@@ -23,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 
+from ..sim import tangent
 from ..sim.rollout import physics_step, start_data, state_of, with_state
 from ..sim.stages import stage
 from ..task.env import EnvData, EnvDims
@@ -75,7 +84,11 @@ def linearise(
     # faster). Without contacts the batch runs 2-4x faster, so it stays
     # (docs/performance.md).
     T, nx, nu = u_bar.shape[0], dims.nx, dims.nu
-    n = nx + nu
+    # A free or ball joint's state directions are the tangent space's 2 nv
+    # (module docstring): nd columns per step, nx on hinges and slides.
+    curved = bool(dims.quats)
+    nd = dims.ndx if curved else nx
+    n = nd + nu
     x_rep = jnp.repeat(x_bar[:-1], n, axis=0)
     u_rep = jnp.repeat(u_lin, n, axis=0)
     e = jnp.tile(jnp.eye(n, dtype=x_bar.dtype), (T, 1))
@@ -87,16 +100,33 @@ def linearise(
         # Both sides of every column as one batch of 2 T (nx + nu) steps: one
         # copy of the step in the program (the forward-mode program holds the
         # step and its tangent; docs/performance.md).
-        x_pm = jnp.concatenate([x_rep + h * e[:, :nx], x_rep - h * e[:, :nx]])
-        u_pm = jnp.concatenate([u_rep + h * e[:, nx:], u_rep - h * e[:, nx:]])
+        if curved:
+            x_pm = tangent.integrate(dims, jnp.concatenate([x_rep, x_rep]), h * jnp.concatenate([e, -e])[:, :nd])
+        else:
+            x_pm = jnp.concatenate([x_rep + h * e[:, :nx], x_rep - h * e[:, :nx]])
+        u_pm = jnp.concatenate([u_rep + h * e[:, nd:], u_rep - h * e[:, nd:]])
         x_next = jax.lax.map(lambda a: f(*a), (x_pm, u_pm)) if one_at_a_time else jax.vmap(f)(x_pm, u_pm)
-        cols = (x_next[: T * n] - x_next[T * n :]) / (2.0 * h)
-    elif one_at_a_time:
-        cols = jax.lax.map(lambda a: column(*a), (x_rep, u_rep, e))
+        if curved:
+            cols = tangent.difference(dims, x_next[: T * n], x_next[T * n :]) / (2.0 * h)
+        else:
+            cols = (x_next[: T * n] - x_next[T * n :]) / (2.0 * h)
     else:
-        cols = jax.vmap(column)(x_rep, u_rep, e)
-    AB = jnp.swapaxes(cols.reshape(T, n, nx), 1, 2)  # [T, nx, nx + nu]
-    return LinearModel(AB[:, :, :nx], AB[:, :, nx:])
+        if curved:  # the state's columns along the tangent basis J(x_bar_t), read back through J+(x_bar_t+1)
+            e = jnp.concatenate([jnp.einsum("bij,bj->bi", tangent.basis(dims, x_rep), e[:, :nd]), e[:, nd:]], axis=1)
+        if one_at_a_time:
+            cols = jax.lax.map(lambda a: column(*a), (x_rep, u_rep, e))
+        else:
+            cols = jax.vmap(column)(x_rep, u_rep, e)
+        if curved:
+            cols = jnp.einsum("bij,bj->bi", tangent.cobasis(dims, jnp.repeat(x_bar[1:], n, axis=0)), cols)
+    AB = jnp.swapaxes(cols.reshape(T, n, nd), 1, 2)  # [T, nd, nd + nu]
+    if not curved:
+        return LinearModel(AB[:, :, :nx], AB[:, :, nx:])
+    # Back on the full state x = [qpos, qvel] the backward pass and the line
+    # search work on: A_t = J(x_bar_t+1) A~_t J+(x_bar_t), B_t = J(x_bar_t+1) B~_t,
+    # which map every deviation onto the tangent plane of the unit quaternions.
+    J_next = tangent.basis(dims, x_bar[1:])
+    return LinearModel(J_next @ AB[:, :, :nd] @ tangent.cobasis(dims, x_bar[:-1]), J_next @ AB[:, :, nd:])
 
 
 def nonfinite_hint(mj_model: mujoco.MjModel) -> str:

@@ -36,8 +36,8 @@ JACOBIAN_SETTINGS = ("auto", "exact", "differences")
 """How the model-based reference linearises the dynamics
 (``SolverConfig.jacobian``, ``model_based.linearise``): ``exact`` (forward
 mode through MJX's step), ``differences`` (central differences of the same
-step) or ``auto`` (the default: differences on a contact-rich model, exact
-otherwise; ``sim.contacts.jacobian``)."""
+step) or ``auto`` (the default: differences on a contact-rich model or one
+with a free or ball joint, exact otherwise; ``sim.contacts.jacobian``)."""
 
 MIN_N_S = 40
 """The fewest sysid rollouts of the default ``n_s`` (``SolverConfig.resolved_n_s``)."""
@@ -180,11 +180,12 @@ class SolverConfig:
       jacobian: how the model-based reference linearises the dynamics, one of
         ``JACOBIAN_SETTINGS``: ``auto`` (the default) takes central
         differences of MJX's step on a contact-rich model (at least
-        ``sim.contacts.MANY_ROWS`` constraint rows) and the exact
-        forward-mode derivative otherwise; ``exact`` or ``differences``
-        force one. At an active contact the forward-mode derivative is NaN
-        under the elliptic friction cone, and its program compiles for about
-        twice as long (docs/performance.md).
+        ``sim.contacts.MANY_ROWS`` constraint rows) or one with a free or
+        ball joint, and the exact forward-mode derivative otherwise;
+        ``exact`` or ``differences`` force one. At an active contact the
+        forward-mode derivative is NaN under the elliptic friction cone, at
+        zero angular rate a quaternion's is zero, and its program compiles
+        for about twice as long (docs/performance.md).
         POD-iLQR does not read it.
     """
 

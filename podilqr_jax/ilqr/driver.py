@@ -502,6 +502,12 @@ def terminate(ctx: Context, st: SolverState, stop: Stop, timing: Timing, watch: 
         warnings.append(
             f"{record.mu_retries} times no step lowered the cost and the backward pass was redone with a larger mu"
         )
+    if dims.quats and getattr(ctx.identify, "jacobian", None) == "exact":
+        warnings.append(
+            "jacobian='exact' on a model with a free or ball joint: MJX's forward-mode derivative of a quaternion's "
+            "rotation is zero at zero angular rate, so a body at rest may never be turned; jacobian='differences' "
+            "(what auto takes on such a model) has no such blind spot"
+        )
     nominal = st.nominal
     # the compile ahead counts with its wall time, not the summed seconds of its overlapping threads
     compile_s = watch.seconds - timing.ahead_events_s + timing.phase_s["compile"]

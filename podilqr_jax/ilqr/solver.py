@@ -117,7 +117,10 @@ def solve_model_based(
     view = env.full_state_view()
     dims, data = view.dims, on_device(view.data)
     native = dims.native is not None  # no derivative through MuJoCo's C engine: central differences, batched
-    jacobian = "differences" if native and cfg.jacobian == "auto" else contacts.jacobian(cfg.jacobian, data.model)
+    floating = bool(dims.quats)  # a free or ball joint: forward mode is blind at zero angular rate
+    jacobian = (
+        "differences" if native and cfg.jacobian == "auto" else contacts.jacobian(cfg.jacobian, data.model, floating)
+    )
     one_at_a_time = not native and contacts.one_at_a_time(data.model)
     identify = Exact(dims, data, nonfinite_hint(env.mj_model), one_at_a_time, jacobian)
     ctx = _context("model-based", env, dims, data, cfg, 1, identify, False, 1)

@@ -1,12 +1,12 @@
 """Monte Carlo episodes: a policy run closed loop on the noisy system, as one MJX batch.
 
 One episode of a :class:`~podilqr_jax.control.policy.FeedbackPolicy` from the start
-state x_0 = x0 + dx_0:
+state x_0 = x0 (+) dx_0 (``tangent.integrate``: a rotation on a free or ball joint):
 
   m_t     = z_t + v_t                        measured, z_t = C x_t (+ D s(x_t)),
                                              or x_t + v_t for a full-state policy
   u_t     = u_bar_t + K_t xi_t               commanded (xi from the m's)
-  x_{t+1} = f(x_t, u_t + a_t) + w_t          a_t actuator noise, w_t process noise
+  x_{t+1} = f(x_t, u_t + a_t) (+) w_t        a_t actuator noise, w_t process noise
 
 Its cost is the task's cost of the *true* observations z_t and the
 commanded controls, and its final error is max_i |z_T - z*|_i. The noise
@@ -38,8 +38,8 @@ from .xla_options import jit
 class EpisodeNoise(NamedTuple):
     """Standard deviations of an episode's noise and the actuator limits (traced)."""
 
-    x0: jnp.ndarray  # [nx] start-state deviation
-    w: jnp.ndarray  # [nx] process noise on qpos, qvel after each step
+    x0: jnp.ndarray  # [2 nv] start-state deviation (tangent space, ``sim.tangent``)
+    w: jnp.ndarray  # [2 nv] process noise on qpos, qvel after each step
     v: jnp.ndarray  # [nm] measurement noise on what the policy measures
     a: jnp.ndarray  # [nu] actuator noise added to the commanded control
     u_low: jnp.ndarray  # [nu] actuator limits: the command is clipped to [u_low, u_high]

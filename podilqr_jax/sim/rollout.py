@@ -32,8 +32,9 @@ rollouts runs as a ``lax.map`` over chunks of whole repeat groups, so memory
 grows with the chunk, not with n_s x n_avg.
 
 Noise (see ``noise``): with a :class:`~podilqr_jax.task.noise.Disturbance` per
-rollout the start state is x0 + dx_0, the process noise w_t is written into
-``qpos``/``qvel`` after each control step and the measurement noise v_t is
+rollout the start state is x0 (+) dx_0, the process noise w_t is written into
+``qpos``/``qvel`` after each control step (x (+) w_t: on a free or ball
+joint's quaternion a rotation, ``tangent.integrate``) and the measurement noise v_t is
 added to every measurement; the controller sees the measured (noisy) values.
 :func:`simulate` returns the measured observations (what the fit sees) and
 the true states ``x``; the episodes return the true observations (what the
@@ -58,7 +59,7 @@ from mujoco import mjx
 from ..identify.info_state import initial_info_state, shift
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
-from . import native, rk4, xla_options
+from . import native, rk4, tangent, xla_options
 from .stages import stage
 
 
@@ -195,11 +196,11 @@ def run(
     """One closed-loop rollout of ``steps`` control steps (default: the
     horizon): the one scan skeleton every rollout of the package runs.
 
-    From the true start state x_0 = x_start (+ dx_0), at every step t
+    From the true start state x_0 = x_start (+) dx_0 (``tangent.integrate``), at every step t
 
       m_t     = z_t (or x_t, ``measures_state``) + v_t   what the controller measures
       u_t     = clip(controller.command(c_t, s_t), limits)
-      x_{t+1} = f(x_t, u_t + a_t) + w_t                    ``substeps`` MuJoCo steps
+      x_{t+1} = f(x_t, u_t + a_t) (+) w_t                  ``substeps`` MuJoCo steps
       c_{t+1} = controller.advance(c_t, s_t, u_t, m_{t+1})
 
     with c_0 = controller.start(m_0) and s_t the controller's schedule at t
@@ -216,7 +217,7 @@ def run(
     model = data.model
     steps = dims.horizon if steps is None else steps
     dist = Disturbance() if disturbance is None else disturbance
-    x0 = x_start if dist.dx0 is None else x_start + dist.dx0
+    x0 = x_start if dist.dx0 is None else tangent.integrate(dims, x_start, dist.dx0)
     d = with_state(dims, d, x0)
     v_now, v_next = (None, None) if dist.v is None else (dist.v[0], dist.v[1:])
 
@@ -234,7 +235,7 @@ def run(
         u = jnp.clip(controller.command(c, s), *limits)
         d = physics_step(dims, model, d, u if a_t is None else u + a_t)
         if w_t is not None:
-            d = with_state(dims, d, state_of(d) + w_t)
+            d = with_state(dims, d, tangent.integrate(dims, state_of(d), w_t))
         x = state_of(d)
         z = observe(dims, data, d, x)
         m = measured(z, x, v_t)
@@ -397,7 +398,7 @@ def bytes_per_rollout(dims: EnvDims, data: EnvData, noisy: bool = True, record_s
     T, nx = dims.horizon, dims.nx
     floats = (T + 1) * dims.nz + 2 * T * dims.nu  # z, u, du
     if noisy:
-        floats += nx + T * nx + (T + 1) * dims.nz  # dx0, w, v
+        floats += dims.ndx + T * dims.ndx + (T + 1) * dims.nz  # dx0, w, v
     if record_state:
         floats += (T + 1) * nx  # x
     return int(8 * mjx_bytes + 8 * floats)

@@ -129,12 +129,12 @@ def noise_at_level(env: Env, settings, eps, u_max, channel_range, limits) -> Epi
     measurement noise ``eps x measurement_ratio x channel_range`` (with the
     settings' system noise added), commands clipped to ``limits``."""
     sys = settings.system_noise
-    nx = env.dims.nx
+    ndx = env.dims.ndx  # state noise lives in the tangent space (sim.tangent)
     meas = eps * settings.measurement_ratio * channel_range
     meas = np.sqrt(meas**2 + sys.measurement**2)
     return EpisodeNoise(
-        x0=jnp.full((nx,), sys.initial),
-        w=jnp.full((nx,), sys.process),
+        x0=jnp.full((ndx,), sys.initial),
+        w=jnp.full((ndx,), sys.process),
         v=jnp.asarray(meas),
         a=jnp.asarray(eps * u_max),
         u_low=jnp.asarray(limits[0]),

@@ -31,6 +31,7 @@ import numpy as np
 from mujoco import mjx
 
 from ..errors import ModelLoadError, TaskError
+from ..sim.tangent import quaternions
 from .noise import NoiseLevels, NoiseModel, noise_levels
 from .package_files import is_package_path, resolve_model_path
 
@@ -46,6 +47,9 @@ class EnvDims:
     substeps: int
     horizon: int
     sensors: bool = False  # some observation reads ``sensordata`` (needs mjx.forward)
+    # (qpos address, dof address) of each free or ball joint's quaternion: where
+    # a state deviation is formed in the tangent space (``sim.tangent``).
+    quats: tuple[tuple[int, int], ...] = ()
     # The engine of the rollouts: None for MJX, or the ``sim.native.NativeModel``
     # that runs them in MuJoCo's C engine (hashed by identity; ``Env.on_engine``).
     native: Any = dataclasses.field(default=None, repr=False)
@@ -55,6 +59,11 @@ class EnvDims:
         return self.nq + self.nv
 
     @property
+    def ndx(self) -> int:
+        """The size of a state deviation, 2 nv (``sim.tangent``; nx where nq == nv)."""
+        return 2 * self.nv
+
+    @property
     def engine(self) -> str:
         """``mjx`` or ``native``: the engine the rollouts of these dimensions run on."""
         return "mjx" if self.native is None else "native"
@@ -62,6 +71,8 @@ class EnvDims:
     def as_dict(self) -> dict:
         """The sizes (and the engine where it is not MJX), as plain values."""
         sizes = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "native"}
+        if not self.quats:
+            del sizes["quats"]  # a hinge-and-slide checkpoint keeps the fingerprint it was written with
         return sizes if self.native is None else sizes | {"engine": self.engine}
 
 
@@ -221,9 +232,18 @@ class Env:
         Qm = _cost_matrix("Q", Q, nz, "nz (observation size)", definite=False)
         QTm = _cost_matrix("QT", QT, nz, "nz (observation size)", definite=False)
         Rm = _cost_matrix("R", R, nu, "nu (number of controls)", definite=True)
-        noise_model = NoiseModel.from_any(noise).validate(nq, nv)
+        noise_model = NoiseModel.from_any(noise).validate()
 
-        dims = EnvDims(nq=nq, nv=nv, nu=nu, nz=nz, substeps=int(substeps), horizon=int(horizon), sensors=obs.sensors)
+        dims = EnvDims(
+            nq=nq,
+            nv=nv,
+            nu=nu,
+            nz=nz,
+            substeps=int(substeps),
+            horizon=int(horizon),
+            sensors=obs.sensors,
+            quats=quaternions(mj_model),
+        )
         data = EnvData(
             model=mjx_model,
             C=jnp.asarray(C),
@@ -232,7 +252,7 @@ class Env:
             Q=jnp.asarray(Qm),
             QT=jnp.asarray(QTm),
             R=jnp.asarray(Rm),
-            noise=noise_levels(noise_model, nq + nv, nz),
+            noise=noise_levels(noise_model, dims.ndx, nz),
             goal_step=jnp.asarray(int(horizon)),
             D=jnp.asarray(obs.D),
             u_low=jnp.asarray(u_low),

@@ -8,8 +8,13 @@ The true system of the paper (Section II) is
 
 with the state x = [qpos, qvel]. ``w_t`` is written into MuJoCo's ``qpos`` and
 ``qvel`` after each control step (all ``substeps`` physics steps), inside the
-batched MJX rollout; ``v_t`` corrupts every measurement, z_0 included, and the
+batched rollout; ``v_t`` corrupts every measurement, z_0 included, and the
 information state and the feedback are built from the corrupted measurements.
+
+dx_0 and w_t are deviations in the state's tangent space, 2 nv numbers
+(``sim.tangent``): on a model with a free or ball joint "+" turns its
+quaternion as ``mj_integratePos`` does, by a rotation vector of std s0 (or sw)
+rad per axis; on hinges and slides it is the plain sum.
 
 Every rollout draws its own noise from its own PRNG key (``sample`` splits
 one key over the batch), so the same seed gives the same result and different
@@ -37,8 +42,10 @@ class NoiseModel:
     """Standard deviations of the system's noise (all zero: a deterministic system).
 
     Attributes:
-      initial: s0, std of the start-state deviation dx_0 (each of qpos, qvel).
-      process: std of w_t, added to qpos and qvel after each control step.
+      initial: s0, std of the start-state deviation dx_0 (each of its 2 nv
+        tangent components: positions, rotation angles in rad, velocities).
+      process: std of w_t, added to the state after each control step (in the
+        same tangent components).
       measurement: std of v_t, added to each observed component.
     """
 
@@ -59,7 +66,7 @@ class NoiseModel:
     def is_zero(self) -> bool:
         return self.initial == 0.0 and self.process == 0.0 and self.measurement == 0.0
 
-    def validate(self, nq: int, nv: int) -> "NoiseModel":
+    def validate(self) -> "NoiseModel":
         for name in ("initial", "process", "measurement"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -69,13 +76,6 @@ class NoiseModel:
                     f"Noise `{name}` is a standard deviation and must be >= 0; got {value!r}. "
                     "Use 0 to switch that noise off."
                 )
-        if nq != nv and (self.initial > 0 or self.process > 0):
-            raise TaskError(
-                f"State noise (initial={self.initial:g}, process={self.process:g}) is added to qpos and "
-                f"qvel componentwise, which is only meaningful when nq == nv; this model has nq={nq}, "
-                f"nv={nv} (a free or ball joint with a quaternion). Set initial and process noise to 0 "
-                "or use hinge/slide joints."
-            )
         return dataclasses.replace(
             self, initial=float(self.initial), process=float(self.process), measurement=float(self.measurement)
         )
@@ -110,8 +110,8 @@ class NoiseLevels(NamedTuple):
     system, which has none; the closed-loop evaluation sets it
     (:class:`~podilqr_jax.sim.episodes.EpisodeNoise`)."""
 
-    x0: jnp.ndarray  # [nx] start-state deviation
-    w: jnp.ndarray  # [nx] process noise
+    x0: jnp.ndarray  # [2 nv] start-state deviation (tangent space, ``sim.tangent``)
+    w: jnp.ndarray  # [2 nv] process noise
     v: jnp.ndarray  # [nm] measurement noise
     a: Optional[jnp.ndarray] = None  # [nu] actuator noise
 
@@ -125,15 +125,16 @@ class Disturbance(NamedTuple):
     step t, ``v_t`` to the measurement m_t and ``a_t`` to the control the
     physics receives at step t (the rollout records the commanded one)."""
 
-    dx0: Optional[jnp.ndarray] = None  # [..., nx]
-    w: Optional[jnp.ndarray] = None  # [..., S, nx]
+    dx0: Optional[jnp.ndarray] = None  # [..., 2 nv] (tangent space, ``sim.tangent``)
+    w: Optional[jnp.ndarray] = None  # [..., S, 2 nv]
     v: Optional[jnp.ndarray] = None  # [..., S+1, nm]
     a: Optional[jnp.ndarray] = None  # [..., S, nu]
 
 
-def noise_levels(model: NoiseModel, nx: int, nz: int) -> NoiseLevels:
+def noise_levels(model: NoiseModel, ndx: int, nz: int) -> NoiseLevels:
+    """The traced levels of ``model`` for a state deviation of ``ndx`` (2 nv) and ``nz`` measurements."""
     return NoiseLevels(
-        x0=jnp.full((nx,), model.initial), w=jnp.full((nx,), model.process), v=jnp.full((nz,), model.measurement)
+        x0=jnp.full((ndx,), model.initial), w=jnp.full((ndx,), model.process), v=jnp.full((nz,), model.measurement)
     )
 
 
