@@ -61,6 +61,8 @@ def test_integrate_and_difference_are_mujocos():
     m = mujoco.MjModel.from_xml_string(CHAIN)
     dims = EnvDims(nq=m.nq, nv=m.nv, nu=1, nz=1, substeps=1, horizon=1, quats=tangent.quaternions(m))
     assert dims.quats == ((3, 3), (8, 7)) and dims.ndx == 2 * m.nv == 22
+    integrate = jax.jit(tangent.integrate, static_argnums=0)
+    difference = jax.jit(tangent.difference, static_argnums=0)
     rng = np.random.default_rng(0)
     for trial in range(40):
         qpos = _unit_quats(rng, rng.standard_normal(m.nq), dims.quats)
@@ -69,13 +71,13 @@ def test_integrate_and_difference_are_mujocos():
         dv = rng.standard_normal(m.nv)
         expected = qpos.copy()
         mujoco.mj_integratePos(m, expected, dq, 1.0)
-        got = np.asarray(tangent.integrate(dims, jnp.asarray(np.r_[qpos, qvel]), jnp.asarray(np.r_[dq, dv])))
+        got = np.asarray(integrate(dims, jnp.asarray(np.r_[qpos, qvel]), jnp.asarray(np.r_[dq, dv])))
         np.testing.assert_allclose(got, np.r_[expected, qvel + dv], rtol=0, atol=1e-14)
 
         other = _unit_quats(rng, rng.standard_normal(m.nq), dims.quats)
         rates = np.zeros(m.nv)
         mujoco.mj_differentiatePos(m, rates, 1.0, qpos, other)
-        diff = tangent.difference(dims, jnp.asarray(np.r_[other, qvel + dv]), jnp.asarray(np.r_[qpos, qvel]))
+        diff = difference(dims, jnp.asarray(np.r_[other, qvel + dv]), jnp.asarray(np.r_[qpos, qvel]))
         np.testing.assert_allclose(np.asarray(diff), np.r_[rates, dv], rtol=0, atol=1e-13)
 
 
@@ -84,8 +86,8 @@ def test_basis_and_cobasis_are_the_derivatives():
     dims = EnvDims(nq=m.nq, nv=m.nv, nu=1, nz=1, substeps=1, horizon=1, quats=tangent.quaternions(m))
     rng = np.random.default_rng(1)
     x = jnp.asarray(np.r_[_unit_quats(rng, rng.standard_normal(m.nq), dims.quats), rng.standard_normal(m.nv)])
-    J = jax.jacfwd(lambda d: tangent.integrate(dims, x, d))(jnp.zeros(dims.ndx))
-    P = jax.jacfwd(lambda y: tangent.difference(dims, y, x))(x)
+    J = jax.jit(jax.jacfwd(lambda d: tangent.integrate(dims, x, d)))(jnp.zeros(dims.ndx))
+    P = jax.jit(jax.jacfwd(lambda y: tangent.difference(dims, y, x)))(x)
     assert np.all(np.isfinite(J)) and np.all(np.isfinite(P))  # differentiable at the zero rotation
     np.testing.assert_allclose(np.asarray(tangent.basis(dims, x)), np.asarray(J), rtol=0, atol=1e-15)
     np.testing.assert_allclose(np.asarray(tangent.cobasis(dims, x)), np.asarray(P), rtol=0, atol=1e-14)
@@ -147,14 +149,14 @@ def test_the_reference_turns_a_floating_box():
     assert exact.final_cost > 5 * ref.final_cost
     assert any("free or ball joint" in w for w in exact.warnings)
     assert not any("free or ball joint" in w for w in ref.warnings)
-    pod = pj.solve(env)
+    pod = pj.solve(env, pj.default_config(env, engine="native"))  # MuJoCo's C step: no second MJX compile
     assert pod.status == pj.Status.CONVERGED
     assert abs(pod.final_cost - ref.final_cost) <= 1e-6 * ref.final_cost
 
 
 def test_a_noisy_solve_of_a_floating_box_lowers_its_true_cost():
     env = _box(noise=pj.NoiseModel.paper(partial=False))
-    res = pj.solve(env, pj.default_config(env, max_iterations=30))
+    res = pj.solve(env, pj.default_config(env, max_iterations=20, engine="native"))
     true = np.asarray(res.record.true_cost_history)
     assert np.all(np.isfinite(true))
     assert true[-1] < 0.5 * true[0]
