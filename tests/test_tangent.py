@@ -1,4 +1,4 @@
-"""State deviations on free and ball joints (``sim.tangent``).
+"""State deviations on free and ball joints (``task.tangent``).
 
 The tangent-space maps against MuJoCo's own ``mj_integratePos`` and
 ``mj_differentiatePos``; state noise on a floating body (refused before the
@@ -17,8 +17,9 @@ import pytest
 
 import podilqr_jax as pj
 from podilqr_jax.identify.info_state import info_dim
-from podilqr_jax.sim import engines, tangent
+from podilqr_jax.sim import engines
 from podilqr_jax.sim.rollout import open_loop_policy, rollout_batch
+from podilqr_jax.task import tangent
 from podilqr_jax.task.env import EnvDims
 from podilqr_jax.task.noise import sample
 

@@ -54,8 +54,8 @@ from ..identify.sysid import LinearModel
 from ..ilqr.config import SolverConfig
 from ..ilqr.result import Status
 from ..ilqr.state import Nominal
-from ..sim import tangent
 from ..sim.rollout import on_device, open_loop_policy, rollout_batch
+from ..task import tangent
 from ..task.env import Env
 from .policy import FeedbackPolicy
 
@@ -142,7 +142,7 @@ def estimator_policy(
     nz, nu, q = policy.nz, policy.nu, policy.q
     nZ = policy.info_dim
     C = np.asarray(env.data.C)
-    # State noise is drawn in the tangent space (sim.tangent): its covariance
+    # State noise is drawn in the tangent space (task.tangent): its covariance
     # in the observations is s^2 C J J' C', J the tangent basis at the start
     # state (at every step, an approximation on a free or ball joint).
     CJ = C if not env.dims.quats else C @ np.asarray(tangent.basis(env.dims, env.data.x0))

@@ -12,7 +12,7 @@ direction, in one of two ways (``JACOBIANS``):
   (eps / h); MuJoCo's own ``mjd_transitionFD`` differentiates so.
 
 On a model with a free or ball joint the state's directions are those of its
-tangent space (``sim.tangent``), 2 nv of them: x_bar (+) h e_j and the
+tangent space (``task.tangent``), 2 nv of them: x_bar (+) h e_j and the
 difference f(+) (-) f(-) as ``mj_integratePos`` and ``mj_differentiatePos``
 form them (forward mode: along the tangent basis J, read back through J+),
 and (A~_t, B~_t) on the tangent space are carried back to the full state as
@@ -31,9 +31,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 
-from ..sim import tangent
 from ..sim.rollout import physics_step, start_data, state_of, with_state
 from ..sim.stages import stage
+from ..task import tangent
 from ..task.env import EnvData, EnvDims
 from .sysid import LinearModel
 

@@ -38,7 +38,7 @@ from .xla_options import jit
 class EpisodeNoise(NamedTuple):
     """Standard deviations of an episode's noise and the actuator limits (traced)."""
 
-    x0: jnp.ndarray  # [2 nv] start-state deviation (tangent space, ``sim.tangent``)
+    x0: jnp.ndarray  # [2 nv] start-state deviation (tangent space, ``task.tangent``)
     w: jnp.ndarray  # [2 nv] process noise on qpos, qvel after each step
     v: jnp.ndarray  # [nm] measurement noise on what the policy measures
     a: jnp.ndarray  # [nu] actuator noise added to the commanded control

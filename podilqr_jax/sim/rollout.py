@@ -57,9 +57,10 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
 from ..identify.info_state import initial_info_state, shift
+from ..task import tangent
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
-from . import native, rk4, tangent, xla_options
+from . import native, rk4, xla_options
 from .stages import stage
 
 

@@ -129,7 +129,7 @@ def noise_at_level(env: Env, settings, eps, u_max, channel_range, limits) -> Epi
     measurement noise ``eps x measurement_ratio x channel_range`` (with the
     settings' system noise added), commands clipped to ``limits``."""
     sys = settings.system_noise
-    ndx = env.dims.ndx  # state noise lives in the tangent space (sim.tangent)
+    ndx = env.dims.ndx  # state noise lives in the tangent space (task.tangent)
     meas = eps * settings.measurement_ratio * channel_range
     meas = np.sqrt(meas**2 + sys.measurement**2)
     return EpisodeNoise(

@@ -31,9 +31,9 @@ import numpy as np
 from mujoco import mjx
 
 from ..errors import ModelLoadError, TaskError
-from ..sim.tangent import quaternions
 from .noise import NoiseLevels, NoiseModel, noise_levels
 from .package_files import is_package_path, resolve_model_path
+from .tangent import quaternions
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,7 +48,7 @@ class EnvDims:
     horizon: int
     sensors: bool = False  # some observation reads ``sensordata`` (needs mjx.forward)
     # (qpos address, dof address) of each free or ball joint's quaternion: where
-    # a state deviation is formed in the tangent space (``sim.tangent``).
+    # a state deviation is formed in the tangent space (``task.tangent``).
     quats: tuple[tuple[int, int], ...] = ()
     # The engine of the rollouts: None for MJX, or the ``sim.native.NativeModel``
     # that runs them in MuJoCo's C engine (hashed by identity; ``Env.on_engine``).
@@ -60,7 +60,7 @@ class EnvDims:
 
     @property
     def ndx(self) -> int:
-        """The size of a state deviation, 2 nv (``sim.tangent``; nx where nq == nv)."""
+        """The size of a state deviation, 2 nv (``task.tangent``; nx where nq == nv)."""
         return 2 * self.nv
 
     @property

@@ -12,7 +12,7 @@ batched rollout; ``v_t`` corrupts every measurement, z_0 included, and the
 information state and the feedback are built from the corrupted measurements.
 
 dx_0 and w_t are deviations in the state's tangent space, 2 nv numbers
-(``sim.tangent``): on a model with a free or ball joint "+" turns its
+(``task.tangent``): on a model with a free or ball joint "+" turns its
 quaternion as ``mj_integratePos`` does, by a rotation vector of std s0 (or sw)
 rad per axis; on hinges and slides it is the plain sum.
 
@@ -110,7 +110,7 @@ class NoiseLevels(NamedTuple):
     system, which has none; the closed-loop evaluation sets it
     (:class:`~podilqr_jax.sim.episodes.EpisodeNoise`)."""
 
-    x0: jnp.ndarray  # [2 nv] start-state deviation (tangent space, ``sim.tangent``)
+    x0: jnp.ndarray  # [2 nv] start-state deviation (tangent space, ``task.tangent``)
     w: jnp.ndarray  # [2 nv] process noise
     v: jnp.ndarray  # [nm] measurement noise
     a: Optional[jnp.ndarray] = None  # [nu] actuator noise
@@ -125,7 +125,7 @@ class Disturbance(NamedTuple):
     step t, ``v_t`` to the measurement m_t and ``a_t`` to the control the
     physics receives at step t (the rollout records the commanded one)."""
 
-    dx0: Optional[jnp.ndarray] = None  # [..., 2 nv] (tangent space, ``sim.tangent``)
+    dx0: Optional[jnp.ndarray] = None  # [..., 2 nv] (tangent space, ``task.tangent``)
     w: Optional[jnp.ndarray] = None  # [..., S, 2 nv]
     v: Optional[jnp.ndarray] = None  # [..., S+1, nm]
     a: Optional[jnp.ndarray] = None  # [..., S, nu]
