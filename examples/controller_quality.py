@@ -26,7 +26,6 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.ilqr.config import fully_observed
 from podilqr_jax.sim.episodes import EpisodeNoise, run_episodes
 
 TASKS = ("pendulum-full", "pendulum-partial", "cartpole-full", "cartpole-partial")
@@ -37,7 +36,7 @@ def small_noise(env, reference) -> EpisodeNoise:
     nx, nz, nu = env.dims.nx, env.dims.nz, env.dims.nu
     zeros = jnp.zeros
     low, high = env.data.u_low, env.data.u_high
-    if fully_observed(env):
+    if env.fully_observed:
         a = 0.05 * float(np.max(np.abs(reference.controls)))
         return EpisodeNoise(zeros(nx), zeros(nx), zeros(nz), jnp.full(nu, a), low, high)
     return EpisodeNoise(zeros(nx), jnp.full(nx, 2e-3), zeros(nz), zeros(nu), low, high)

@@ -4,7 +4,7 @@ About a swinging nominal (u = 0.3 sin(0.3 t)) of a task, 40 sysid rollouts
 at each sigma, least squares with the rank cap; prints rho (RMS of the fit
 residual over the RMS of the response, all steps) and the round-off estimate
 that ``adapt_sigma`` compares it with (``sysid.fit_residual``, the numbers
-the solver reads; ``config.adapted_sigma``). Curvature makes rho grow like
+the solver reads; ``identify.sigma.adapted_sigma``). Curvature makes rho grow like
 sigma (like sigma^2 with ``--mirrored``), round-off like 1 / sigma.
 
     python examples/fit_residual.py [TASK or task file] [--mirrored]   # default: dm_control's cart-pole

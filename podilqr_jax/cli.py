@@ -38,6 +38,7 @@ import textwrap
 from typing import Any, Optional, Sequence
 
 from .studies.settings import add_size_flags, check_writable, parse_names, size_of
+from .verbosity import VERBOSE_HELP, quiet_backends
 
 EXIT_INPUT_ERROR = 2
 
@@ -63,23 +64,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
         return 130
-
-
-VERBOSE_HELP = "show XLA's and JAX's own log lines and alarms (also PODILQR_VERBOSE=1)"
-
-
-def quiet_backends(verbose: bool) -> None:
-    """Keep XLA's and JAX's own alarms out of the terminal: XLA's C++ log lines
-    (such as "Constant folding an instruction is taking > 1s", an ERROR-level
-    line about compile time, not about the result) and the warnings of JAX's
-    logger. ``--verbose`` or ``PODILQR_VERBOSE=1`` keeps them, and so does a
-    ``TF_CPP_MIN_LOG_LEVEL`` the user set. Called before JAX is imported."""
-    if verbose or os.environ.get("PODILQR_VERBOSE", "0").strip().lower() not in ("", "0", "off", "false", "no"):
-        return
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-    import logging
-
-    logging.getLogger("jax").setLevel(logging.ERROR)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -254,44 +238,6 @@ def _parse_sets(items: Sequence[str]) -> dict[str, Any]:
     return out
 
 
-def load_env(task: str, noise: Optional[str] = None):
-    """A bundled task by name, or a task file by path; ``noise`` as --noise."""
-    from .ilqr.config import fully_observed
-    from .task.noise import NoiseModel
-    from .task.taskfile import load_task
-    from .task.tasks import PAPER_S0, make_task
-
-    is_file = task.endswith((".toml", ".json")) or os.path.sep in task
-    env = load_task(task) if is_file else make_task(task)
-    if noise is None:
-        return env
-    spec = _parse_noise(noise)
-    if spec == "paper":
-        spec = NoiseModel.paper(PAPER_S0, partial=not fully_observed(env))
-    if not is_file:  # a bundled task: its noisy solver defaults come with the noise
-        return make_task(task, noise=spec)
-    return env.replace(noise=spec)
-
-
-def _parse_noise(text: str):
-    from .errors import TaskError
-    from .task.noise import NoiseModel
-
-    text = text.strip()
-    if text in ("paper", "none"):
-        return "paper" if text == "paper" else NoiseModel()
-    fields: dict[str, Any] = {}
-    for item in text.split(","):
-        key, _, raw = item.partition("=")
-        try:
-            fields[key.strip()] = float(raw)
-        except ValueError:  # also a missing `=`: float("") fails
-            raise TaskError(
-                f"--noise expects `paper`, `none` or initial=S0,process=SW,measurement=SV (numbers); got {text!r}."
-            ) from None
-    return NoiseModel.from_any(fields)
-
-
 def _cmd_bench(argv: list[str]) -> int:
     """``podilqr bench``: the benchmark suite installed with the package (podilqr_jax/studies/bench)."""
     from .studies.bench import main as bench_main
@@ -348,11 +294,9 @@ def _parse_levels(text: str) -> tuple[float, ...]:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from .ilqr.config import fully_observed
     from .ilqr.result import load_result
     from .studies.evaluate import EvaluateSettings, format_table, run_evaluation
-    from .task.noise import NoiseModel
-    from .task.tasks import PAPER_S0
+    from .task.loading import load_env, noise_model
 
     names = ("episodes", "replan_episodes", "replan_every", "replan_iterations")
     names += ("u_limit", "model_error", "measurement_ratio", "seed")
@@ -365,10 +309,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     result = load_result(args.result)
     env = load_env(args.task or result.task)
     if args.system_noise is not None:
-        spec = _parse_noise(args.system_noise)
-        settings = settings.changed(
-            system_noise=NoiseModel.paper(PAPER_S0, partial=not fully_observed(env)) if spec == "paper" else spec
-        )
+        settings = settings.changed(system_noise=noise_model(args.system_noise, env))
     train_env = env.replace(noise=result.noise) if result.noisy else env
     check_writable(os.path.join(args.out, "evaluate.json"))
     print(f"evaluating {args.result} ({result.task}, {result.variant}) into {args.out}", file=sys.stderr)
@@ -431,6 +372,8 @@ def _cmd_solve(args: argparse.Namespace) -> int:
 
 def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
     import podilqr_jax as pj
+
+    from .task.loading import load_env
 
     sets = _parse_sets(args.set)
     check_writable(args.out)

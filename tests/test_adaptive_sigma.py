@@ -13,7 +13,7 @@ import pytest
 
 import podilqr_jax as pj
 from podilqr_jax.identify.identification import actuator_units
-from podilqr_jax.ilqr.config import adapted_sigma
+from podilqr_jax.identify.sigma import adapted_sigma
 
 
 def _cfg(**kw):

@@ -203,7 +203,7 @@ def test_cli_evaluate_refuses_a_missing_or_foreign_file(tmp_path, capsys):
 
 
 def test_actuator_limits_are_the_models_ctrlrange_else_a_multiple_of_the_largest_control():
-    from podilqr_jax.studies.evaluate import actuator_limits
+    from podilqr_jax.sim.episodes import actuator_limits
 
     low, high = actuator_limits(pj.make_task("doublependulum-full"), np.array([8.0, 2.0]), 2.0)
     np.testing.assert_array_equal(low, [-7.0, -1.8])

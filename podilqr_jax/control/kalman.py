@@ -52,7 +52,6 @@ from ..identify.identification import Experiment, data_based
 from ..identify.info_state import info_dim
 from ..identify.sysid import LinearModel
 from ..ilqr.config import SolverConfig
-from ..ilqr.result import Status
 from ..ilqr.state import Nominal
 from ..sim.rollout import on_device, open_loop_policy, rollout_batch
 from ..task import tangent
@@ -129,7 +128,7 @@ def identify_about_nominal(
     base = rollout_batch(dims, q, env.data, open_loop_policy(ctrl.u_bar, policy.info_dim), zero, zero)
     nominal = Nominal(ctrl.u_bar, base.z, None, jnp.zeros((dims.horizon + 1, policy.info_dim)), float("nan"))
     found = identify(jax.random.PRNGKey(seed), nominal, None, cfg.sigma, Experiment())
-    if found.n_bad or (found.stop is not None and found.stop.status == Status.NONFINITE):
+    if found.n_bad or found.problem == "nonfinite":
         raise ConfigError("The estimator's identification rollouts are not finite; lower the solve's sigma.")
     return found.model
 

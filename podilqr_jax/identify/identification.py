@@ -15,14 +15,12 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, NamedTuple, Optional
+from typing import TYPE_CHECKING, Any, NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..ilqr.config import SolverConfig, adapted_sigma
-from ..ilqr.stopping import Stop, exact_model_stop, identification_stop
 from ..sim import shared
 from ..sim.rollout import (
     Policy,
@@ -36,7 +34,18 @@ from ..task.env import Env, EnvData, EnvDims
 from .estimators import fit_information_model_iv
 from .info_state import info_dim, n_regressors
 from .model_based import linearise
-from .sysid import LinearModel, excited_rank, fit_information_model, fit_residual
+from .sigma import adapted_sigma
+from .sysid import LinearModel, excited_rank, fit_information_model, fit_residual, model_is_finite
+
+if TYPE_CHECKING:  # the settings are read, never built, here
+    from ..ilqr.config import SolverConfig
+
+PROBLEMS = ("diverged", "nonfinite", "no_response")
+"""What can make an identified model unusable (``Identified.problem``):
+fewer good sysid rollouts than the fit has regressors, a non-finite entry of
+A_t or B_t, or no response (the perturbations moved no observation; the
+linearisation's B_t = 0 at every step). The driver decides what follows
+(``ilqr.stopping``)."""
 
 
 class Experiment(NamedTuple):
@@ -47,14 +56,35 @@ class Experiment(NamedTuple):
 
 
 class Identified(NamedTuple):
-    """One identification: the model (or the stop it ran into) and what it cost."""
+    """One identification: the model, what is wrong with it if anything, and what it cost."""
 
     model: LinearModel
-    stop: Optional[Stop]
+    problem: Optional[str]  # one of ``PROBLEMS``, or None: a usable model
     rollouts: int  # rollouts run
     n_bad: int  # sysid rollouts left out of the fit as non-finite
     seconds: dict  # phase name -> seconds ("rollouts", "fit")
     next_sigma: Optional[float]  # the adapted sysid scale for the next identification (cfg.adapt_sigma), or None
+    needed: int = 0  # the fewest good rollouts the fit takes (its regressors; 0 for the linearisation)
+
+
+def fit_problem(model: LinearModel, n_good: int, needed: int, target_rms) -> Optional[str]:
+    """What makes a data-based fit unusable (``PROBLEMS``), or None."""
+    if n_good < needed:
+        return "diverged"
+    if not model_is_finite(model):
+        return "nonfinite"
+    if float(np.max(np.asarray(target_rms))) == 0.0:
+        return "no_response"
+    return None
+
+
+def linearisation_problem(model: LinearModel) -> Optional[str]:
+    """What makes the model-based linearisation unusable (``PROBLEMS``), or None."""
+    if not model_is_finite(model):
+        return "nonfinite"
+    if not np.any(np.asarray(model.B)):
+        return "no_response"
+    return None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,15 +152,16 @@ class DataBased:
         else:
             model, report = fit_information_model(traj.z, traj.u, z_bar, u_bar, self.q, self.rcond, self.max_rank)
         n_bad = int(report.n_bad)
-        stop = identification_stop(n_bad, cfg.n_s, self.needed, model, report.target_rms, sigma)
+        problem = fit_problem(model, cfg.n_s - n_bad, self.needed, report.target_rms)
         following = None
-        if self.adapt and stop is None:
+        if self.adapt and problem is None:
             rho, floor = fit_residual(report, nominal.z_bar)
             if np.isfinite(rho):
                 following = adapted_sigma(sigma, rho, floor, 2 if mirrored else 1, cfg)
         t2 = time.perf_counter()
         rollouts = cfg.n_s * self.n_avg * (2 if mirrored else 1)
-        return Identified(model, stop, rollouts, n_bad, {"rollouts": t1 - t0, "fit": t2 - t1}, following)
+        seconds = {"rollouts": t1 - t0, "fit": t2 - t1}
+        return Identified(model, problem, rollouts, n_bad, seconds, following, self.needed)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -151,8 +182,8 @@ class Exact:
     def __call__(self, key: jax.Array, nominal, gains, sigma: float, experiment: Experiment) -> Identified:
         t0 = time.perf_counter()
         model = linearise(self.dims, self.data, nominal.x_bar, nominal.u_bar, self.one_at_a_time, self.jacobian)
-        stop = exact_model_stop(model, self.hint if self.jacobian == "exact" else "", self.jacobian)
-        return Identified(model, stop, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}, None)
+        problem = linearisation_problem(model)
+        return Identified(model, problem, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}, None)
 
 
 def data_based(

@@ -51,6 +51,11 @@ class LinearModel(NamedTuple):
     B: jnp.ndarray  # [T, nZ, nu]
 
 
+def model_is_finite(model: LinearModel) -> bool:
+    """Every entry of A_t and B_t finite (read on the host: a few kB, and no eager kernel to compile)."""
+    return bool(np.all(np.isfinite(np.asarray(model.A))) and np.all(np.isfinite(np.asarray(model.B))))
+
+
 class FitReport(NamedTuple):
     """Diagnostics of the least-squares fit."""
 
@@ -65,7 +70,7 @@ def fit_residual(report: FitReport, z_bar) -> tuple[float, float]:
     """On the host: (rho, floor) of a fit. rho is the RMS of the residual over
     the RMS of the response, all steps; floor the round-off's expected share of
     it, eps x the RMS of the nominal's observations ``z_bar`` over the RMS of
-    the response (what ``config.adapted_sigma`` weighs; docs/robustness.md).
+    the response (what ``sigma.adapted_sigma`` weighs; docs/robustness.md).
     Both NaN where the response is zero or the residual not finite."""
     res, target = np.asarray(report.residual_rms), np.asarray(report.target_rms)
     power = float(np.sum(target**2))

@@ -97,7 +97,7 @@ class SolverConfig:
         ``"absolute"``: sigma for every actuator (the paper's).
       adapt_sigma: in a noiseless data-based solve, set sigma afresh after
         every identification from the fit's own diagnostics
-        (``adapted_sigma``): smaller where the relative fit residual (the
+        (``identify.sigma.adapted_sigma``): smaller where the relative fit residual (the
         response's curvature) is above ``max_residual``, larger where the
         residual sits on the round-off floor, always inside
         [sigma / sigma_range, sigma x sigma_range]. The scale used at
@@ -235,7 +235,7 @@ class SolverConfig:
     def resolved_q(self, env: Env) -> int:
         if self.q is not None:
             return self.q
-        return 1 if fully_observed(env) else 2
+        return 1 if env.fully_observed else 2
 
     def resolved_n_s(self, env: Env) -> int:
         """``n_s``, or where it is None the default that scales with the fit:
@@ -382,11 +382,6 @@ def check_impl(impl: Any) -> None:
             )
 
 
-def fully_observed(env: Env) -> bool:
-    """True when the observation determines the whole state (C square, full rank)."""
-    return env.dims.nz == env.dims.nx
-
-
 def check_int(name: str, value: Any, minimum: int) -> None:
     """Raise a ConfigError unless ``value`` is an integer >= ``minimum`` (settings checks, also ``evaluate``'s)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
@@ -419,29 +414,3 @@ def reidentify_scale(attempt: int) -> float:
         return 1.0
     decades = (attempt + 1) // 2
     return 10.0 ** (-decades if attempt % 2 else decades)
-
-
-def adapted_sigma(sigma: float, rho: float, floor: float, order: int, cfg: "SolverConfig") -> float:
-    """The sysid scale for the next identification, from the last one's fit.
-
-    ``rho`` is the fit's relative residual (RMS of the residual over the RMS
-    of the response, all steps), ``floor`` the round-off's share of it
-    (``eps x`` RMS of the nominal's observations over the RMS of the
-    response) and ``order`` how the curvature part grows with sigma (1 for
-    least squares on the raw rollouts; 2 for mirrored pairs, whose even
-    terms cancel). Noiseless, rho is curvature (``~ sigma^order``) plus
-    round-off (``~ 1 / sigma``):
-
-    - rho above ``cfg.max_residual``: curvature; shrink sigma to put rho a
-      decade below it (by 10x at most per identification);
-    - rho within 10x of the floor: round-off; grow sigma 10x;
-    - else keep sigma.
-
-    The result stays within ``cfg.sigma_range`` of ``cfg.sigma``.
-    """
-    new = sigma
-    if rho > cfg.max_residual:
-        new = sigma * max(0.1, (0.1 * cfg.max_residual / rho) ** (1.0 / order))
-    elif rho < 10.0 * floor:
-        new = sigma * 10.0
-    return float(min(max(new, cfg.sigma / cfg.sigma_range), cfg.sigma * cfg.sigma_range))

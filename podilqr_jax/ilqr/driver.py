@@ -235,6 +235,16 @@ def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverS
     return st
 
 
+def _identification_stop(ctx: Context, found, sigma: float) -> Optional[Stop]:
+    """What the driver makes of an identification's problem (``identify.Identified.problem``)."""
+    if found.problem is None:
+        return None
+    if ctx.data_based:
+        return stopping.identification_stop(found, ctx.cfg.n_s, sigma)
+    exact = ctx.identify
+    return stopping.exact_model_stop(found, exact.hint if exact.jacobian == "exact" else "", exact.jacobian)
+
+
 def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
     """One iteration: identify (unless the model is reused), backward pass, line search."""
     cfg, record = ctx.cfg, st.record
@@ -252,9 +262,10 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
         record.rollouts += iter_rollouts
         for name, secs in found.seconds.items():
             timing.phase_s[name] += secs
-        if found.stop is not None:
+        stop = _identification_stop(ctx, found, sigma)
+        if stop is not None:
             st.model = None
-            return Outcome(found.stop, note, False, iter_rollouts)
+            return Outcome(stop, note, False, iter_rollouts)
         if found.n_bad:
             record.diverged_rollouts += found.n_bad
             note = f"{found.n_bad} sysid rollouts diverged, left out of the fit"

@@ -2,9 +2,10 @@
 
 The rules in the order the driver meets them in an iteration:
 
-1. identification (``identification_stop``): too many sysid rollouts diverged,
-   the fitted or exact model is not finite, or the perturbations moved no
-   observation (``nonfinite``, ``no_response``);
+1. identification (``identification_stop``, ``exact_model_stop``): the
+   problem ``identify`` reports of its model (``Identified.problem``): too
+   many sysid rollouts diverged, the fitted or exact model is not finite, or
+   the perturbations moved no observation (``nonfinite``, ``no_response``);
 2. backward pass (``backward_stop``): a noiseless backward pass that needs mu
    above ``mu_max`` (``line_search_failed``), or a gradient below ``gtol``
    (``converged``);
@@ -43,20 +44,20 @@ def interrupted(signum: Optional[int]) -> Stop:
     return Stop(Status.INTERRUPTED, f"{by}; the result is the nominal and gains of the last completed iteration")
 
 
-def identification_stop(n_bad: int, n_s: int, needed: int, model, target_rms, sigma: float) -> Optional[Stop]:
-    """A data-based identification that cannot be used: ``n_bad`` of ``n_s``
-    rollouts diverged leaving fewer than ``needed``, a non-finite model, or
-    no response (every ``target_rms`` zero)."""
-    n_good = n_s - n_bad
-    if n_good < needed:
+def identification_stop(found, n_s: int, sigma: float) -> Optional[Stop]:
+    """A data-based identification ``found`` (``identify.Identified``) that
+    cannot be used: ``found.n_bad`` of ``n_s`` rollouts diverged leaving fewer
+    than the fit needs, a non-finite model, or no response."""
+    if found.problem == "diverged":
+        n_good = n_s - found.n_bad
         return Stop(
             Status.NONFINITE,
-            f"{n_bad} of {n_s} sysid rollouts diverged (non-finite states); the {n_good} left are "
-            f"too few for the fit ({needed} needed): lower sigma, or look at the model's stability",
+            f"{found.n_bad} of {n_s} sysid rollouts diverged (non-finite states); the {n_good} left are "
+            f"too few for the fit ({found.needed} needed): lower sigma, or look at the model's stability",
         )
-    if not model_is_finite(model):
+    if found.problem == "nonfinite":
         return Stop(Status.NONFINITE, "the fitted model is not finite")
-    if float(np.max(np.asarray(target_rms))) == 0.0:
+    if found.problem == "no_response":
         return Stop(
             Status.NO_RESPONSE,
             f"the sysid perturbations (sigma={sigma:g}) left every observation unchanged, "
@@ -65,13 +66,14 @@ def identification_stop(n_bad: int, n_s: int, needed: int, model, target_rms, si
     return None
 
 
-def exact_model_stop(model, hint: str, jacobian: str = "exact") -> Optional[Stop]:
-    """The model-based linearisation (``jacobian``: ``exact`` or
-    ``differences``) is not finite (``hint``: what in the model may cause it)."""
+def exact_model_stop(found, hint: str, jacobian: str = "exact") -> Optional[Stop]:
+    """The model-based linearisation ``found`` (``jacobian``: ``exact`` or
+    ``differences``) is not finite (``hint``: what in the model may cause it)
+    or moves nothing."""
     what = "exact linearisation" if jacobian == "exact" else "linearisation by central differences"
-    if not model_is_finite(model):
+    if found.problem == "nonfinite":
         return Stop(Status.NONFINITE, f"the {what} is not finite" + hint)
-    if not np.any(np.asarray(model.B)):
+    if found.problem == "no_response":
         return Stop(
             Status.NO_RESPONSE,
             f"the {what} has B_t = 0 at every step: the controls move nothing in it, so its gradient is "
@@ -79,11 +81,6 @@ def exact_model_stop(model, hint: str, jacobian: str = "exact") -> Optional[Stop
             + ("; try jacobian='differences'" if jacobian == "exact" else ""),
         )
     return None
-
-
-def model_is_finite(model) -> bool:
-    """Every entry of A_t and B_t finite (read on the host: a few kB, and no eager kernel to compile)."""
-    return bool(np.all(np.isfinite(np.asarray(model.A))) and np.all(np.isfinite(np.asarray(model.B))))
 
 
 def backward_stop(ok: bool, grad_norm: float, noisy: bool, cfg: SolverConfig) -> Optional[Stop]:

@@ -22,15 +22,16 @@ from given states: the building block of receding-horizon replanning.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..control.policy import FeedbackPolicy
 from ..ilqr.cost import batch_costs
-from ..task.env import EnvData, EnvDims
-from ..task.noise import Disturbance, NoiseLevels, sample
+from ..task.env import Env, EnvData, EnvDims
+from ..task.noise import Disturbance, NoiseLevels, NoiseModel, sample
 from .rollout import run_batch
 from .xla_options import jit
 
@@ -53,6 +54,48 @@ class EpisodeNoise(NamedTuple):
     @property
     def limits(self) -> tuple[jnp.ndarray, jnp.ndarray]:
         return self.u_low, self.u_high
+
+
+MEASUREMENT_RATIO = 0.1
+"""Measurement noise per unit of actuator noise level, as a fraction of each channel's range."""
+
+U_LIMIT = 2.0
+"""An actuator without a ctrlrange is clipped to +- U_LIMIT x its largest nominal control."""
+
+
+def actuator_limits(env: Env, u_max: np.ndarray, u_limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """The model's ctrlrange where it limits a control (the box MuJoCo and the
+    solver clamp to, ``env.data.u_low/u_high``), else +- u_limit u_max."""
+    bound = np.where(u_max > 0, u_limit * u_max, np.inf)
+    low, high = np.asarray(env.data.u_low), np.asarray(env.data.u_high)
+    return np.where(np.isfinite(low), low, -bound), np.where(np.isfinite(high), high, bound)
+
+
+def noise_at_level(
+    env: Env,
+    eps: float,
+    u_max,
+    channel_range,
+    limits,
+    measurement_ratio: float = MEASUREMENT_RATIO,
+    system_noise: Optional[NoiseModel] = None,
+) -> EpisodeNoise:
+    """The episodes' noise at level ``eps``: actuator noise ``eps x u_max``,
+    measurement noise ``eps x measurement_ratio x channel_range`` (with the
+    system noise's added), commands clipped to ``limits`` (``podilqr
+    evaluate``'s levels, and the noisy episodes of an animation)."""
+    sys = NoiseModel() if system_noise is None else system_noise
+    ndx = env.dims.ndx  # state noise lives in the tangent space (task.tangent)
+    meas = eps * measurement_ratio * channel_range
+    meas = np.sqrt(meas**2 + sys.measurement**2)
+    return EpisodeNoise(
+        x0=jnp.full((ndx,), sys.initial),
+        w=jnp.full((ndx,), sys.process),
+        v=jnp.asarray(meas),
+        a=jnp.asarray(eps * u_max),
+        u_low=jnp.asarray(limits[0]),
+        u_high=jnp.asarray(limits[1]),
+    )
 
 
 class Episodes(NamedTuple):

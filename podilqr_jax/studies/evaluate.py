@@ -34,7 +34,6 @@ import time
 from typing import Any, Callable, Optional
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ..control.kalman import EstimatorNoise, estimator_policy, identify_about_nominal
@@ -44,7 +43,15 @@ from ..errors import ConfigError
 from ..ilqr.config import SolverConfig, check_int, check_nonnegative
 from ..ilqr.result import Result
 from ..ilqr.solver import solve_model_based
-from ..sim.episodes import EpisodeNoise, Episodes, run_episodes
+from ..sim.episodes import (
+    MEASUREMENT_RATIO,
+    U_LIMIT,
+    EpisodeNoise,
+    Episodes,
+    actuator_limits,
+    noise_at_level,
+    run_episodes,
+)
 from ..task.env import Env
 from ..task.noise import NoiseModel
 from .report import header, write
@@ -62,8 +69,8 @@ class EvaluateSettings(Sized):
 
     levels: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.5)
     episodes: int = 256
-    measurement_ratio: float = 0.1
-    u_limit: float = 2.0
+    measurement_ratio: float = MEASUREMENT_RATIO
+    u_limit: float = U_LIMIT
     system_noise: NoiseModel = NoiseModel()
     estimator: bool = True
     estimator_n_s: Optional[int] = None
@@ -114,32 +121,6 @@ class EvaluateSettings(Sized):
 
 def _finite(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def actuator_limits(env: Env, u_max: np.ndarray, u_limit: float) -> tuple[np.ndarray, np.ndarray]:
-    """The model's ctrlrange where it limits a control (the box MuJoCo and the
-    solver clamp to, ``env.data.u_low/u_high``), else +- u_limit u_max."""
-    bound = np.where(u_max > 0, u_limit * u_max, np.inf)
-    low, high = np.asarray(env.data.u_low), np.asarray(env.data.u_high)
-    return np.where(np.isfinite(low), low, -bound), np.where(np.isfinite(high), high, bound)
-
-
-def noise_at_level(env: Env, settings, eps, u_max, channel_range, limits) -> EpisodeNoise:
-    """The episodes' noise at level ``eps``: actuator noise ``eps x u_max``,
-    measurement noise ``eps x measurement_ratio x channel_range`` (with the
-    settings' system noise added), commands clipped to ``limits``."""
-    sys = settings.system_noise
-    ndx = env.dims.ndx  # state noise lives in the tangent space (task.tangent)
-    meas = eps * settings.measurement_ratio * channel_range
-    meas = np.sqrt(meas**2 + sys.measurement**2)
-    return EpisodeNoise(
-        x0=jnp.full((ndx,), sys.initial),
-        w=jnp.full((ndx,), sys.process),
-        v=jnp.asarray(meas),
-        a=jnp.asarray(eps * u_max),
-        u_low=jnp.asarray(limits[0]),
-        u_high=jnp.asarray(limits[1]),
-    )
 
 
 def _row(name: str, eps: float, ep: Episodes, tol: float, reference: float, wall: float, levels: EpisodeNoise) -> dict:
@@ -219,7 +200,9 @@ def evaluate(
     replan_compiles = 0
     for i, eps in enumerate(settings.levels):
         level_key = jax.random.fold_in(key, i)
-        obs_levels = noise_at_level(clean, settings, eps, u_max, obs_range, limits)
+        obs_levels = noise_at_level(
+            clean, eps, u_max, obs_range, limits, settings.measurement_ratio, settings.system_noise
+        )
         runs: list[tuple[str, FeedbackPolicy, EpisodeNoise]] = [
             ("open_loop", policy.open_loop(), obs_levels),
             ("closed_loop", policy, obs_levels),
@@ -234,7 +217,15 @@ def evaluate(
             )
             runs.append(("closed_loop_estimator", estimator_policy(clean, policy, model, design), obs_levels))
         if settings.model_based:
-            runs.append(("model_based", mb_policy, noise_at_level(clean, settings, eps, u_max, state_range, limits)))
+            runs.append(
+                (
+                    "model_based",
+                    mb_policy,
+                    noise_at_level(
+                        clean, eps, u_max, state_range, limits, settings.measurement_ratio, settings.system_noise
+                    ),
+                )
+            )
         for name, pol, lv in runs:
             t0 = time.perf_counter()
             ep = run_episodes(clean.dims, clean.data, pol, level_key, lv, settings.episodes)

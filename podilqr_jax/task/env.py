@@ -364,6 +364,12 @@ class Env:
         return bool(np.any(np.isfinite(bounds)))
 
     @property
+    def fully_observed(self) -> bool:
+        """True when the observation has as many entries as the state (nz == nq + nv):
+        the default information state then holds one measurement (q = 1)."""
+        return self.dims.nz == self.dims.nx
+
+    @property
     def noisy(self) -> bool:
         """True when the system has any noise."""
         return not self.noise.is_zero

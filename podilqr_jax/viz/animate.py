@@ -18,7 +18,7 @@ with
   (``episodes.run_episodes``) as faded copies behind the nominal, under the
   noise ``podilqr evaluate`` applies at level ``noise``: actuator noise of
   standard deviation ``noise`` x max|u_bar| per actuator plus measurement
-  noise (``evaluate.noise_at_level``); the frame shows their mean cost so far.
+  noise (``episodes.noise_at_level``); the frame shows their mean cost so far.
 
 ``compare=OTHER`` draws a second result of the same task beside the first,
 through the same camera. Frames come from :mod:`podilqr_jax.viz.render`
@@ -171,8 +171,7 @@ def noisy_episodes(result, env, n: int, noise: float, seed: int = 0, open_loop: 
     import jax
     import jax.numpy as jnp
 
-    from ..sim.episodes import run_episodes
-    from ..studies.evaluate import EvaluateSettings, actuator_limits, noise_at_level
+    from ..sim.episodes import U_LIMIT, actuator_limits, noise_at_level, run_episodes
     from ..task.noise import NoiseModel
 
     _check_episodes(n, minimum=1)
@@ -183,16 +182,15 @@ def noisy_episodes(result, env, n: int, noise: float, seed: int = 0, open_loop: 
             policy, controller=policy.controller._replace(K=jnp.zeros_like(policy.controller.K))
         )
     clean = env.replace(noise=NoiseModel())
-    settings = EvaluateSettings()
     u_max = np.max(np.abs(np.asarray(result.controls)), axis=0)
-    limits = actuator_limits(clean, u_max, settings.u_limit)
+    limits = actuator_limits(clean, u_max, U_LIMIT)
     measured = np.asarray(result.states if policy.measures == "state" else result.observations)
     if measured.shape[1] != policy.nz:
         raise ConfigError(
             f"The result measures {policy.nz} number(s) per step but the task {env.name!r} observes "
             f"{measured.shape[1]}: pass the task the result was solved on (--task)."
         )
-    levels = noise_at_level(clean, settings, float(noise), u_max, np.ptp(measured, axis=0), limits)
+    levels = noise_at_level(clean, float(noise), u_max, np.ptp(measured, axis=0), limits)
     key = jax.random.PRNGKey(int(seed))
     return run_episodes(clean.dims, clean.data, policy, key, levels, int(n))
 

@@ -36,10 +36,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.cli import load_env
 from podilqr_jax.sim import engines
 from podilqr_jax.sim.native import default_threads, native_model
 from podilqr_jax.sim.rollout import open_loop_policy, perturbation_rollouts
+from podilqr_jax.task.loading import load_env
 
 TASK_GLOBS = ("examples/tasks/third_party/*.toml", "examples/tasks/robots/*.toml")
 

@@ -63,9 +63,9 @@ from typing import Any, Optional
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.cli import VERBOSE_HELP
 from podilqr_jax.studies.report import header, write
 from podilqr_jax.studies.settings import Sized, add_size_flags, check_writable, parse_names, size_of
+from podilqr_jax.verbosity import VERBOSE_HELP
 
 NON_ROLLOUT_PHASES = ("fit", "backward", "host")
 
