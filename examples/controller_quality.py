@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.sim.episodes import EpisodeNoise, run_episodes
+from podilqr_jax.control.episodes import EpisodeNoise, run_episodes
 
 TASKS = ("pendulum-full", "pendulum-partial", "cartpole-full", "cartpole-partial")
 EPISODES = 128

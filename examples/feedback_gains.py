@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.sim.episodes import EpisodeNoise, run_episodes
+from podilqr_jax.control.episodes import EpisodeNoise, run_episodes
 
 
 def main() -> None:

@@ -26,8 +26,8 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
+from podilqr_jax.control.episodes import EpisodeNoise, run_episodes
 from podilqr_jax.identify.sysid import excited_rank
-from podilqr_jax.sim.episodes import EpisodeNoise, run_episodes
 
 EPISODES = 64
 PARTIAL_BOUND = 1.02

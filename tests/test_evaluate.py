@@ -17,8 +17,8 @@ import pytest
 
 import podilqr_jax as pj
 from podilqr_jax.cli import main
+from podilqr_jax.control.episodes import EpisodeNoise, run_episodes
 from podilqr_jax.control.replan import replan_episodes, shifted
-from podilqr_jax.sim.episodes import EpisodeNoise, run_episodes
 from podilqr_jax.studies.evaluate import CONTROLLERS, EvaluateSettings, run_evaluation
 
 HORIZON = 10
@@ -203,7 +203,7 @@ def test_cli_evaluate_refuses_a_missing_or_foreign_file(tmp_path, capsys):
 
 
 def test_actuator_limits_are_the_models_ctrlrange_else_a_multiple_of_the_largest_control():
-    from podilqr_jax.sim.episodes import actuator_limits
+    from podilqr_jax.control.episodes import actuator_limits
 
     low, high = actuator_limits(pj.make_task("doublependulum-full"), np.array([8.0, 2.0]), 2.0)
     np.testing.assert_array_equal(low, [-7.0, -1.8])

@@ -42,10 +42,10 @@ from ..errors import ConfigError
 from ..ilqr.config import SolverConfig
 from ..ilqr.solver import solve
 from ..sim.compile_watch import CompileWatch
-from ..sim.episodes import EpisodeNoise, Episodes, run_segment, summarise
 from ..task import tangent
 from ..task.env import Env
 from ..task.noise import Disturbance, sample
+from .episodes import EpisodeNoise, Episodes, run_segment, summarise
 from .policy import FeedbackPolicy
 
 

@@ -36,14 +36,7 @@ from typing import Any, Callable, Optional
 import jax
 import numpy as np
 
-from ..control.kalman import EstimatorNoise, estimator_policy, identify_about_nominal
-from ..control.policy import FeedbackPolicy
-from ..control.replan import replan_episodes
-from ..errors import ConfigError
-from ..ilqr.config import SolverConfig, check_int, check_nonnegative
-from ..ilqr.result import Result
-from ..ilqr.solver import solve_model_based
-from ..sim.episodes import (
+from ..control.episodes import (
     MEASUREMENT_RATIO,
     U_LIMIT,
     EpisodeNoise,
@@ -52,6 +45,13 @@ from ..sim.episodes import (
     noise_at_level,
     run_episodes,
 )
+from ..control.kalman import EstimatorNoise, estimator_policy, identify_about_nominal
+from ..control.policy import FeedbackPolicy
+from ..control.replan import replan_episodes
+from ..errors import ConfigError
+from ..ilqr.config import SolverConfig, check_int, check_nonnegative
+from ..ilqr.result import Result
+from ..ilqr.solver import solve_model_based
 from ..task.env import Env
 from ..task.noise import NoiseModel
 from .report import header, write

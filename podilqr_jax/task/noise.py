@@ -108,7 +108,7 @@ class NoiseLevels(NamedTuple):
 
     ``a`` (actuator noise on the commanded control) is None for the paper's
     system, which has none; the closed-loop evaluation sets it
-    (:class:`~podilqr_jax.sim.episodes.EpisodeNoise`)."""
+    (:class:`~podilqr_jax.control.episodes.EpisodeNoise`)."""
 
     x0: jnp.ndarray  # [2 nv] start-state deviation (tangent space, ``task.tangent``)
     w: jnp.ndarray  # [2 nv] process noise

@@ -171,7 +171,7 @@ def noisy_episodes(result, env, n: int, noise: float, seed: int = 0, open_loop: 
     import jax
     import jax.numpy as jnp
 
-    from ..sim.episodes import U_LIMIT, actuator_limits, noise_at_level, run_episodes
+    from ..control.episodes import U_LIMIT, actuator_limits, noise_at_level, run_episodes
     from ..task.noise import NoiseModel
 
     _check_episodes(n, minimum=1)

@@ -28,12 +28,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..control.policy import FeedbackPolicy
 from ..ilqr.cost import batch_costs
+from ..sim.rollout import run_batch
+from ..sim.xla_options import jit
 from ..task.env import Env, EnvData, EnvDims
 from ..task.noise import Disturbance, NoiseLevels, NoiseModel, sample
-from .rollout import run_batch
-from .xla_options import jit
+from .policy import FeedbackPolicy
 
 
 class EpisodeNoise(NamedTuple):
