@@ -121,6 +121,11 @@ CASES = (
     Case("A start state of the wrong length", SOLVE, task=dict(qpos="[3.1, 0.0]")),
     Case("`n_s` below the number of regressors", SOLVE + ("--set", "n_s=3")),
     Case("An unknown solver setting", SOLVE + ("--set", "sigmaa=1e-3")),
+    Case(
+        "An unknown setting in a task file's [solver] table",
+        SOLVE,
+        raw_task=TASK.format(**GOOD_TASK).replace("n_s = 20", "sigmaa = 1e-3"),
+    ),
     Case("A solver setting of the wrong type", SOLVE + ("--set", "sigma=abc")),
     Case("An unknown engine", SOLVE + ("--set", "engine=gpu")),
     Case(

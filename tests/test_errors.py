@@ -107,6 +107,13 @@ def test_unknown_solver_setting(pendulum_partial):
         pj.default_config(pendulum_partial, sigmaa=1.0)
 
 
+def test_unknown_solver_setting_of_the_task(pendulum_partial):
+    """A task's own [solver] table is checked where the settings are built, and the message says where it came from."""
+    env = pendulum_partial.replace(solver_defaults={"sigmaa": 1.0})
+    with pytest.raises(pj.ConfigError, match=r"recommends unknown solver setting.*'sigmaa'.*\[solver\] table"):
+        pj.default_config(env)
+
+
 def test_horizon_not_above_q():
     env = pj.make_task("cartpole-partial", horizon=2)
     with pytest.raises(pj.ConfigError, match="horizon T=2 must exceed q=2"):

@@ -14,6 +14,7 @@ frozen :class:`~podilqr_jax.ilqr.driver.Context`; ``driver`` runs the loop
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from typing import Optional
 
@@ -38,6 +39,13 @@ __all__ = ["Callback", "RunOptions", "default_config", "solve", "solve_model_bas
 
 def default_config(env: Env, **overrides) -> SolverConfig:
     """The task's recommended settings (``env`` defaults), with overrides."""
+    known = {f.name for f in dataclasses.fields(SolverConfig)}
+    unknown = sorted(set(env.solver_defaults) - known)
+    if unknown:
+        raise ConfigError(
+            f"The task {env.name!r} recommends unknown solver setting(s) {unknown} (the [solver] table of a task "
+            f"file, or Env.solver_defaults); known settings: {sorted(known)}."
+        )
     settings = dict(env.solver_defaults)
     settings.update(overrides)
     cfg = SolverConfig().replace(**settings)
