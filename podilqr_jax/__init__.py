@@ -17,11 +17,13 @@ loads neither JAX nor MuJoCo (``_runtime`` sets JAX up when they are).
 import os as _os
 import sys as _sys
 
+from . import environment as _environment
+
 # float64 unless PODILQR_X64=0 (``_runtime`` says why). JAX is not imported
 # here: asking through its variable makes JAX start in float64 wherever it is
 # imported first; ``_runtime`` then sets it in JAX's config and restores the
 # variable.
-_X64_ASKED = _os.environ.get("PODILQR_X64", "1") != "0"
+_X64_ASKED = _environment.switch(_environment.X64, True)
 _X64_VARIABLE_BEFORE = _os.environ.get("JAX_ENABLE_X64")
 if _X64_ASKED and "jax" not in _sys.modules:
     _os.environ["JAX_ENABLE_X64"] = "1"

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import os
 
+from . import environment
+
 VERBOSE_HELP = "show XLA's and JAX's own log lines and alarms (also PODILQR_VERBOSE=1)"
 
 
@@ -17,7 +19,7 @@ def quiet_backends(verbose: bool) -> None:
     line about compile time, not about the result) and the warnings of JAX's
     logger. ``--verbose`` or ``PODILQR_VERBOSE=1`` keeps them, and so does a
     ``TF_CPP_MIN_LOG_LEVEL`` the user set. Called before JAX is imported."""
-    if verbose or os.environ.get("PODILQR_VERBOSE", "0").strip().lower() not in ("", "0", "off", "false", "no"):
+    if verbose or environment.switch(environment.VERBOSE, False):
         return
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     import logging

@@ -6,12 +6,14 @@ from __future__ import annotations
 import logging
 import os
 import re
+import warnings
 
 import jax
 import numpy as np
 import pytest
 
 import podilqr_jax as pj
+from podilqr_jax import environment
 from podilqr_jax.identify.info_state import info_dim
 from podilqr_jax.ilqr import line_search as ls
 from podilqr_jax.ilqr import solver
@@ -83,11 +85,13 @@ def _default_width(env):
     return solver._shared_width(env.dims, env.data, cfg, False, cfg.resolved_n_forward())
 
 
-def test_an_unknown_setting_warns_and_means_auto(monkeypatch):
+def test_an_unknown_setting_warns_once_and_means_auto(monkeypatch):
+    monkeypatch.setattr(environment, "_warned", set())
     monkeypatch.setenv(shared.ENV_SWITCH, "sometimes")
-    with pytest.warns(UserWarning, match="not one of auto"):
+    with pytest.warns(UserWarning, match="'sometimes' is not one of 1/on, 0/off, auto; using auto"):
         assert shared.width(40, 1, 10, None, None) is None
-    with pytest.warns(UserWarning, match="not one of auto"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # said once per process and value
         assert shared.width(40, 10, 440, None, None) == 440
 
 

@@ -35,9 +35,9 @@ from typing import Any, Callable, Iterator, Optional
 import jax
 import numpy as np
 
-from .cache import switched_off
+from .. import environment
 
-ENV_SWITCH = "PODILQR_COMPILE_AHEAD"
+ENV_SWITCH = environment.COMPILE_AHEAD
 MAX_WORKERS = 4
 last_error: Optional[str] = None  # why the last dry run was abandoned (None: it was not)
 
@@ -50,11 +50,11 @@ def workers() -> int:
     ``PODILQR_COMPILE_AHEAD``: unset, ``1`` or ``on``: the cores this process
     may run on, at most ``MAX_WORKERS``, and off on one core; ``0`` or
     ``off``: off; an integer N >= 2: N threads, however many cores."""
-    if switched_off(ENV_SWITCH) or jax.process_count() > 1 or jax.device_count() > 1:
+    setting = environment.choice(ENV_SWITCH, "on", counts=True)
+    if setting == "off" or jax.process_count() > 1 or jax.device_count() > 1:
         return 0
-    text = os.environ.get(ENV_SWITCH, "1").strip()
-    if text.isdigit() and int(text) >= 2:
-        return int(text)
+    if isinstance(setting, int):
+        return setting
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not Linux

@@ -39,8 +39,10 @@ from typing import NamedTuple, Optional
 
 import jax
 
-ENV_DIR = "PODILQR_CACHE_DIR"
-ENV_SWITCH = "PODILQR_CACHE"
+from .. import environment
+
+ENV_DIR = environment.CACHE_DIR
+ENV_SWITCH = environment.CACHE
 MIN_COMPILE_TIME_S = 0.0
 MIN_ENTRY_SIZE_BYTES = -1  # JAX: no size restriction, and no filesystem-dependent override
 
@@ -66,33 +68,33 @@ class CacheInfo(NamedTuple):
 _state = {"directory": None, "source": "off", "read_only": False}
 
 
-def switched_off(variable: str) -> bool:
-    """Whether the environment variable ``variable`` says off (``0``, ``off``, ``false``, ``no``)."""
-    return os.environ.get(variable, "1").strip().lower() in ("0", "off", "false", "no")
-
-
 def read_only() -> bool:
     """Whether the package's cache folder is read and never written (read-only, or ``PODILQR_CACHE=read``)."""
     return bool(_state["read_only"])
 
 
+def setting() -> str:
+    """``PODILQR_CACHE``: ``on`` (the default), ``off``, or ``read`` (read, never written)."""
+    return str(environment.choice(ENV_SWITCH, "on", {"read": "read", "read-only": "read", "ro": "read"}))
+
+
 def read_only_asked() -> bool:
     """Whether ``PODILQR_CACHE=read`` asks for the cache to be read and never written."""
-    return os.environ.get(ENV_SWITCH, "").strip().lower() in ("read", "read-only", "ro")
+    return setting() == "read"
 
 
 def default_cache_dir() -> str:
     """``$PODILQR_CACHE_DIR``, else ``$XDG_CACHE_HOME/podilqr_jax/jax``, else ``~/.cache/podilqr_jax/jax``."""
-    explicit = os.environ.get(ENV_DIR)
+    explicit = environment.folder(ENV_DIR)
     if explicit:
-        return os.path.abspath(os.path.expanduser(explicit))
+        return explicit
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return os.path.join(os.path.abspath(base), "podilqr_jax", "jax")
 
 
 def configure() -> CacheInfo:
     """Set up the persistent compilation cache (called once, on import of the package)."""
-    if switched_off(ENV_SWITCH):
+    if setting() == "off":
         _state.update(directory=None, source="off")
     elif not jax.config.jax_enable_compilation_cache:
         _state.update(directory=None, source="off")

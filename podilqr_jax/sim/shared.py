@@ -64,21 +64,19 @@ time instead: ``contacts.one_at_a_time``).
 
 from __future__ import annotations
 
-import os
-import warnings
 from typing import Optional
 
 import jax
 import jax.numpy as jnp
 
+from .. import environment
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
-from .cache import switched_off
 from .contacts import many_rows
 from .rollout import Policy, Trajectory, average_repeats, injected_perturbations, shard_batch, simulate
 from .stages import stage
 
-ENV_SWITCH = "PODILQR_SHARED_ROLLOUTS"
+ENV_SWITCH = environment.SHARED_ROLLOUTS
 MAX_GROUPS = 8  # calls of the shared program per sysid batch (not mirrored), at most
 
 
@@ -88,19 +86,14 @@ def width(
     """The shared program's batch (the line search's ``ls_rollouts``), or None
     where the stages keep their own rollouts (module docstring); ``rows``:
     the model's ``contacts.constraint_rows``."""
-    setting = os.environ.get(ENV_SWITCH, "auto").strip().lower()
-    if setting not in ("", "auto", "1", "on", "true", "yes") and not switched_off(ENV_SWITCH):
-        warnings.warn(
-            f"{ENV_SWITCH}={os.environ[ENV_SWITCH]!r} is not one of auto, 1/on, 0/off; using auto",
-            stacklevel=2,
-        )
-    if switched_off(ENV_SWITCH) or jax.default_backend() != "cpu" or jax.device_count() > 1:
+    setting = environment.choice(ENV_SWITCH, "auto", {"auto": "auto"})
+    if setting == "off" or jax.default_backend() != "cpu" or jax.device_count() > 1:
         return None
     batch = n_s * n_avg
     if (sysid_chunk is not None and batch > sysid_chunk) or (ls_chunk is not None and ls_rollouts > ls_chunk):
         return None
     calls = groups(batch, ls_rollouts)
-    if setting in ("1", "on", "true", "yes"):
+    if setting == "on":
         return ls_rollouts if calls <= MAX_GROUPS else None
     # By itself: one call, or several on a contact model, padded by at most a
     # quarter in all (a padding rollout costs what a sysid rollout does).

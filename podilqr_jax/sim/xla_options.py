@@ -26,12 +26,13 @@ instead (to compare, or should a future XLA make its new emitters the faster).
 from __future__ import annotations
 
 import functools
-import os
 from typing import Any, Callable
 
 import jax
 
-ENV_DEFAULTS = "PODILQR_XLA_DEFAULTS"
+from .. import environment
+
+ENV_DEFAULTS = environment.XLA_DEFAULTS
 COMPILER_OPTIONS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False}
 
 
@@ -40,7 +41,7 @@ def options() -> dict[str, Any]:
     """The compiler options for ``jax.jit(..., compiler_options=...)``: empty
     when ``PODILQR_XLA_DEFAULTS=1``, or when this JAX's XLA does not know them
     (tried once, on a trivial program, at the first compile that asks)."""
-    if os.environ.get(ENV_DEFAULTS, "0") == "1":
+    if environment.switch(ENV_DEFAULTS, False):
         return {}
     try:
         jax.jit(lambda: 0, compiler_options=COMPILER_OPTIONS).lower().compile()
