@@ -143,8 +143,9 @@ def estimator_policy(
     C = np.asarray(env.data.C)
     # State noise is drawn in the tangent space (task.tangent): its covariance
     # in the observations is s^2 C J J' C', J the tangent basis at the start
-    # state (at every step, an approximation on a free or ball joint).
-    CJ = C if not env.dims.quats else C @ np.asarray(tangent.basis(env.dims, env.data.x0))
+    # state (the identity on hinges and slides; at every step, an
+    # approximation on a free or ball joint).
+    CJ = C @ np.asarray(tangent.basis(env.dims, env.data.x0))
     sa = np.broadcast_to(np.asarray(noise.actuator, float), (nu,))
     sv = np.broadcast_to(np.asarray(noise.measurement, float), (nz,))
     # The actuator noise a_t enters like the control: through B_t into the

@@ -89,6 +89,8 @@ def linearise(
     curved = bool(dims.quats)
     nd = dims.ndx if curved else nx
     n = nd + nu
+    if curved:  # the tangent basis J and cobasis J+ at every nominal state, once
+        J, J_plus = tangent.basis(dims, x_bar), tangent.cobasis(dims, x_bar)
     x_rep = jnp.repeat(x_bar[:-1], n, axis=0)
     u_rep = jnp.repeat(u_lin, n, axis=0)
     e = jnp.tile(jnp.eye(n, dtype=x_bar.dtype), (T, 1))
@@ -112,21 +114,21 @@ def linearise(
             cols = (x_next[: T * n] - x_next[T * n :]) / (2.0 * h)
     else:
         if curved:  # the state's columns along the tangent basis J(x_bar_t), read back through J+(x_bar_t+1)
-            e = jnp.concatenate([jnp.einsum("bij,bj->bi", tangent.basis(dims, x_rep), e[:, :nd]), e[:, nd:]], axis=1)
+            J_rep = jnp.repeat(J[:-1], n, axis=0)
+            e = jnp.concatenate([jnp.einsum("bij,bj->bi", J_rep, e[:, :nd]), e[:, nd:]], axis=1)
         if one_at_a_time:
             cols = jax.lax.map(lambda a: column(*a), (x_rep, u_rep, e))
         else:
             cols = jax.vmap(column)(x_rep, u_rep, e)
         if curved:
-            cols = jnp.einsum("bij,bj->bi", tangent.cobasis(dims, jnp.repeat(x_bar[1:], n, axis=0)), cols)
+            cols = jnp.einsum("bij,bj->bi", jnp.repeat(J_plus[1:], n, axis=0), cols)
     AB = jnp.swapaxes(cols.reshape(T, n, nd), 1, 2)  # [T, nd, nd + nu]
     if not curved:
         return LinearModel(AB[:, :, :nx], AB[:, :, nx:])
     # Back on the full state x = [qpos, qvel] the backward pass and the line
     # search work on: A_t = J(x_bar_t+1) A~_t J+(x_bar_t), B_t = J(x_bar_t+1) B~_t,
     # which map every deviation onto the tangent plane of the unit quaternions.
-    J_next = tangent.basis(dims, x_bar[1:])
-    return LinearModel(J_next @ AB[:, :, :nd] @ tangent.cobasis(dims, x_bar[:-1]), J_next @ AB[:, :, nd:])
+    return LinearModel(J[1:] @ AB[:, :, :nd] @ J_plus[:-1], J[1:] @ AB[:, :, nd:])
 
 
 def nonfinite_hint(mj_model: mujoco.MjModel) -> str:

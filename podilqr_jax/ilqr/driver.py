@@ -241,8 +241,7 @@ def _identification_stop(ctx: Context, found, sigma: float) -> Optional[Stop]:
         return None
     if ctx.data_based:
         return stopping.identification_stop(found, ctx.cfg.n_s, sigma)
-    exact = ctx.identify
-    return stopping.exact_model_stop(found, exact.hint if exact.jacobian == "exact" else "", exact.jacobian)
+    return stopping.exact_model_stop(found, ctx.identify.hint, ctx.identify.jacobian)
 
 
 def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
@@ -513,7 +512,7 @@ def terminate(ctx: Context, st: SolverState, stop: Stop, timing: Timing, watch: 
         warnings.append(
             f"{record.mu_retries} times no step lowered the cost and the backward pass was redone with a larger mu"
         )
-    if dims.quats and getattr(ctx.identify, "jacobian", None) == "exact":
+    if dims.quats and not ctx.data_based and ctx.identify.jacobian == "exact":
         warnings.append(
             "jacobian='exact' on a model with a free or ball joint: MJX's forward-mode derivative of a quaternion's "
             "rotation is zero at zero angular rate, so a body at rest may never be turned; jacobian='differences' "

@@ -68,11 +68,11 @@ def identification_stop(found, n_s: int, sigma: float) -> Optional[Stop]:
 
 def exact_model_stop(found, hint: str, jacobian: str = "exact") -> Optional[Stop]:
     """The model-based linearisation ``found`` (``jacobian``: ``exact`` or
-    ``differences``) is not finite (``hint``: what in the model may cause it)
-    or moves nothing."""
+    ``differences``) is not finite (``hint``: what in the model may make the
+    exact one so) or moves nothing."""
     what = "exact linearisation" if jacobian == "exact" else "linearisation by central differences"
     if found.problem == "nonfinite":
-        return Stop(Status.NONFINITE, f"the {what} is not finite" + hint)
+        return Stop(Status.NONFINITE, f"the {what} is not finite" + (hint if jacobian == "exact" else ""))
     if found.problem == "no_response":
         return Stop(
             Status.NO_RESPONSE,

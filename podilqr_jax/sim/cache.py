@@ -78,11 +78,6 @@ def setting() -> str:
     return str(environment.choice(ENV_SWITCH, "on", {"read": "read", "read-only": "read", "ro": "read"}))
 
 
-def read_only_asked() -> bool:
-    """Whether ``PODILQR_CACHE=read`` asks for the cache to be read and never written."""
-    return setting() == "read"
-
-
 def default_cache_dir() -> str:
     """``$PODILQR_CACHE_DIR``, else ``$XDG_CACHE_HOME/podilqr_jax/jax``, else ``~/.cache/podilqr_jax/jax``."""
     explicit = environment.folder(ENV_DIR)
@@ -94,7 +89,8 @@ def default_cache_dir() -> str:
 
 def configure() -> CacheInfo:
     """Set up the persistent compilation cache (called once, on import of the package)."""
-    if setting() == "off":
+    mode = setting()
+    if mode == "off":
         _state.update(directory=None, source="off")
     elif not jax.config.jax_enable_compilation_cache:
         _state.update(directory=None, source="off")
@@ -102,7 +98,7 @@ def configure() -> CacheInfo:
         _state.update(directory=jax.config.jax_compilation_cache_dir, source="jax")
     else:
         path = default_cache_dir()
-        asked = read_only_asked()
+        asked = mode == "read"
         try:
             if not asked:
                 os.makedirs(path, mode=0o700, exist_ok=True)

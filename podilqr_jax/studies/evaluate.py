@@ -29,6 +29,7 @@ it, else to +- ``u_limit`` x u_max (``inf``: no limit).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from typing import Any, Callable, Optional
@@ -198,11 +199,12 @@ def evaluate(
 
     rows: list[dict] = []
     replan_compiles = 0
+    system = {"measurement_ratio": settings.measurement_ratio, "system_noise": settings.system_noise}
     for i, eps in enumerate(settings.levels):
         level_key = jax.random.fold_in(key, i)
-        obs_levels = noise_at_level(
-            clean, eps, u_max, obs_range, limits, settings.measurement_ratio, settings.system_noise
-        )
+        # the level's noise for a policy whose measured channels span a given range
+        at_level = functools.partial(noise_at_level, clean, eps, u_max, limits=limits, **system)
+        obs_levels = at_level(obs_range)
         runs: list[tuple[str, FeedbackPolicy, EpisodeNoise]] = [
             ("open_loop", policy.open_loop(), obs_levels),
             ("closed_loop", policy, obs_levels),
@@ -217,15 +219,7 @@ def evaluate(
             )
             runs.append(("closed_loop_estimator", estimator_policy(clean, policy, model, design), obs_levels))
         if settings.model_based:
-            runs.append(
-                (
-                    "model_based",
-                    mb_policy,
-                    noise_at_level(
-                        clean, eps, u_max, state_range, limits, settings.measurement_ratio, settings.system_noise
-                    ),
-                )
-            )
+            runs.append(("model_based", mb_policy, at_level(state_range)))
         for name, pol, lv in runs:
             t0 = time.perf_counter()
             ep = run_episodes(clean.dims, clean.data, pol, level_key, lv, settings.episodes)

@@ -66,17 +66,7 @@ def _linear(nq: int, nv: int, quats: tuple) -> tuple[np.ndarray, np.ndarray]:
 
 def _mul(a, b):
     """Quaternion product a b, (w, x, y, z), over leading axes."""
-    aw, ax, ay, az = (a[..., i] for i in range(4))
-    bw, bx, by, bz = (b[..., i] for i in range(4))
-    return jnp.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
+    return jnp.einsum("...ij,...j->...i", _left(a), b)
 
 
 def _unit(q):
@@ -109,11 +99,6 @@ def rotation_between(q1, q0):
     # angle / s, with its limit 2 / w near s = 0 (either sign of w)
     scale = jnp.where(big, angle / s, 2.0 / w)
     return scale * v
-
-
-def ndx(nv: int) -> int:
-    """The tangent space's size, 2 nv."""
-    return 2 * nv
 
 
 def integrate(dims, x, dx):
@@ -163,11 +148,7 @@ def basis(dims, x):
 def cobasis(dims, x):
     """J+ = d(x (-) x0)/dx at x = x0: [..., 2 nv, nq + nv], with J+ J = I (a
     quaternion's block is 2 [0, I] q*, the rows of J's block transposed, times 4)."""
-    nq, nv = dims.nq, dims.nv
-    if not dims.quats:
-        return jnp.broadcast_to(jnp.eye(nq + nv, dtype=x.dtype), x.shape[:-1] + (nq + nv, nq + nv))
-    J = basis(dims, x)
-    P = jnp.swapaxes(J, -1, -2)
+    P = jnp.swapaxes(basis(dims, x), -1, -2)
     for qa, va in dims.quats:
         P = P.at[..., va : va + 3, qa : qa + 4].multiply(4.0)
     return P
