@@ -4,10 +4,13 @@
   repository's folder (in this process, so that programs other tests compiled
   are reused), and each shows the library doing its job.
 - Every ``podilqr`` command of a shell block is taken by the CLI's own parser
-  and the files it reads exist; ``podilqr tasks`` runs. The long commands
-  (reproduce, evaluate, bench, animate) have smoke tests of their own in
-  test_cli.py, and the two install commands at the top of the README are what
-  CI (``.ci/run``) runs.
+  and the files it reads exist, and README.md's shell lines run as written, in
+  order, from a scratch folder (each writes what its comment promises), except
+  the three that run for minutes (their comments say how long: ``reproduce
+  --quick``, ``evaluate``, ``bench``), which run at their smallest size in the
+  smoke tests named in ``LONG_RUNS``. The install commands at the top of the
+  README: the test command is what CI (``.ci/run``) runs; the main command's
+  solve is the README's first Python block (both solvers, default settings).
 - docs/task_files.md: each complete TOML block is the task file its command
   names, byte for byte, and the command runs as written (from a scratch folder
   whose ``examples`` is the repository's), printing the summary shown below it.
@@ -30,6 +33,12 @@ from podilqr_jax import cli
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 INSTALL = ("python3 -m venv .venv",)  # the README's install commands: CI's own job
+# README.md's shell commands that run for minutes, and the smoke test that runs each at its smallest size.
+LONG_RUNS = {
+    "reproduce": ("test_reproduce.py", "test_reproduce_writes_summary_figures_and_table"),
+    "evaluate": ("test_evaluate.py", "test_cli_evaluate_runs_and_loads_the_saved_result"),
+    "bench": ("test_cli.py", "test_bench_tiny_runs_every_section_from_the_installed_package"),
+}
 
 
 def blocks(doc: str) -> list[tuple[str, str, int]]:
@@ -106,6 +115,32 @@ def test_every_readme_command_is_taken_by_the_cli():
     with contextlib.redirect_stdout(out):
         assert cli.main(["tasks"]) == 0
     assert "cartpole-partial" in out.getvalue()
+
+
+@pytest.mark.slow
+def test_the_readme_shell_lines_run_as_written(tmp_path, monkeypatch, capsys):
+    os.symlink(os.path.join(ROOT, "examples"), tmp_path / "examples")
+    monkeypatch.chdir(tmp_path)
+    ran = []
+    for argv in commands("README.md"):
+        if argv[0] in LONG_RUNS:
+            module, name = LONG_RUNS[argv[0]]
+            with open(os.path.join(ROOT, "tests", module), encoding="utf-8") as f:
+                assert f"def {name}(" in f.read(), f"podilqr {argv[0]}: no smoke test {module}::{name}"
+            continue
+        assert cli.main(argv) == 0, argv
+        ran.append(argv[0])
+    assert ran.count("solve") == 4 and {"tasks", "animate"} <= set(ran)
+    assert "cartpole-partial" in capsys.readouterr().out  # podilqr tasks
+    # podilqr solve pendulum-full --out runs/p/result.json: JSON, cost and trajectory PNGs, motion GIF
+    swing = json.loads((tmp_path / "runs/p/result.json").read_text())
+    assert swing["status"] == "converged" and swing["final_cost"] < 0.1 * swing["cost_history"][0]
+    for name in ("result_cost.png", "result_trajectory.png", "result_motion.gif", "../../swingup.gif"):
+        assert (tmp_path / "runs/p" / name).stat().st_size > 0, name
+    reference = json.loads((tmp_path / "r.json").read_text())  # the model-based reference
+    assert reference["method"] == "model-based" and reference["status"] in ("converged", "max_iterations")
+    noisy = json.loads((tmp_path / "runs/noisy/result.json").read_text())  # learnt under noise, compared
+    assert noisy["true_cost_history"][-1] < noisy["true_cost_history"][0] and noisy["ratio_to_model_based"] > 0
 
 
 def test_the_task_file_guide_runs_as_written(tmp_path, monkeypatch):
