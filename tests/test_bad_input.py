@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-_PATH = os.path.join(os.path.dirname(__file__), os.pardir, "examples", "bad_input_table.py")
+_PATH = os.path.join(os.path.dirname(__file__), os.pardir, "docs", "bad_input_table.py")
 _spec = importlib.util.spec_from_file_location("bad_input_table", _PATH)
 bad_inputs = importlib.util.module_from_spec(_spec)
 sys.modules[_spec.name] = bad_inputs  # dataclasses look their module up there
@@ -39,12 +39,12 @@ def test_the_good_task_of_the_table_solves(tmp_path):
 
 
 def test_the_page_says_what_the_cases_print_today():
-    """docs/bad_input.md is what ``python examples/bad_input_table.py --write
+    """docs/bad_input.md is what ``python docs/bad_input_table.py --write
     docs/bad_input.md`` writes now: a new case, a changed message or a new
     option in the usage line fails here until the page is regenerated."""
     outcomes = [_OUTCOMES.get(c.what) or bad_inputs.run_case(c) for c in bad_inputs.CASES]
     page = os.path.join(os.path.dirname(__file__), os.pardir, "docs", "bad_input.md")
     with open(page, encoding="utf-8") as f:
         assert f.read() == bad_inputs.page(outcomes), (
-            "docs/bad_input.md is stale: run python examples/bad_input_table.py --write docs/bad_input.md"
+            "docs/bad_input.md is stale: run python docs/bad_input_table.py --write docs/bad_input.md"
         )

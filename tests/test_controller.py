@@ -5,7 +5,7 @@ the sysid perturbations excite only nu (t + 1) directions of the information
 state, and a fit that keeps the rest reads slopes out of the curvature there.
 ``SolverConfig.cap_rank`` (default) fits only the excited directions
 (``sysid.excited_rank``); docs/results.md has the bundled tasks
-(``python examples/controller_quality.py``). On the small problems here, over
+(``python benchmarks/controller_quality.py``). On the small problems here, over
 PRNG keys 1-4 (64 episodes each), closed-loop cost of the learnt policy over the
 model-based one, divided by the nominal costs' ratio:
 

@@ -70,7 +70,7 @@ def test_learnt_gains_match_the_exact_controller_under_actuator_noise(solved, re
     dropped. Those figures are with ``variant=plain`` and no rank cap; today's
     defaults (``feedback``, ``cap_rank``) give the sigma = 1e-7 closed loop at
     sigma = 1e-5 too (|K_1| = 5.28 for both, costs equal to the printed digits).
-    Measured with `python examples/feedback_gains.py pendulum-partial 10`.
+    Measured with `python benchmarks/feedback_gains.py pendulum-partial 10`.
     """
     env, _ = solved
     learnt = pj.solve(env, pj.default_config(env, max_iterations=40, sigma=1e-7))

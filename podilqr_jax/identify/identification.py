@@ -231,7 +231,7 @@ def _unsaturated_gains(K, u_bar, u_low, u_high):
     which the gains turn into a push against the bound. On dm_control's
     cart-pole the applied control moved in 0-20% of the rollouts at the last
     saturated steps, the fit lost the control's column there (rank 4 of 5)
-    and the step it proposed raised the cost (``examples/saturated_sysid.py``).
+    and the step it proposed raised the cost (``benchmarks/saturated_sysid.py``).
     With those rows at zero each perturbation acts on one side, as open loop.
     """
     at_bound = (u_bar <= u_low) | (u_bar >= u_high)

@@ -98,7 +98,7 @@ def physics_step(dims: EnvDims, model, d, u: jnp.ndarray, mj_step=None):
     An RK4 model steps through ``rk4.step`` (MuJoCo's RK4 with one compiled
     copy of the forward dynamics instead of ``mjx.step``'s four), anything
     else through ``mjx.step``; ``mj_step`` overrides the choice (the compile
-    comparison of examples/third_party_compile.py passes ``mjx.step``).
+    comparison of benchmarks/third_party_compile.py passes ``mjx.step``).
     """
     if dims.native is not None:
         return native.step(dims.native, dims.substeps, d, u)

@@ -1,8 +1,8 @@
 """Instrumental variables against averaging: the study of docs/estimators.md.
 
-    python examples/estimator_study.py --out docs/figures/estimators     # ~30 min on 2 CPU cores
-    python examples/estimator_study.py --quick --out runs/estimators      # a few minutes
-    python examples/estimator_study.py --tiny --out runs/estimators       # a smoke run
+    python benchmarks/estimator_study.py --out docs/figures/estimators     # ~30 min on 2 CPU cores
+    python benchmarks/estimator_study.py --quick --out runs/estimators      # a few minutes
+    python benchmarks/estimator_study.py --tiny --out runs/estimators       # a smoke run
 
 Two parts, on the partially observed pendulum and cart-pole under the paper's
 noise (s0 = 0.01, process and measurement noise 1e-3):

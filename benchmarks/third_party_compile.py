@@ -8,7 +8,7 @@ reference compiles) for variants of the model, one option changed at a time,
 and prints a Markdown table (docs/performance.md). Run it with the persistent
 compilation cache off, so every compile is cold:
 
-    PODILQR_CACHE=0 python examples/third_party_compile.py
+    PODILQR_CACHE=0 python benchmarks/third_party_compile.py
 """
 
 import copy

@@ -12,7 +12,7 @@ docs/performance.md puts the compile of an older commit beside this one in one
 run, model by model, interleaved, so both see the same machine load:
 
     git worktree add /tmp/before <commit>
-    python examples/compile_per_model.py --source /tmp/before --source . \\
+    python benchmarks/compile_per_model.py --source /tmp/before --source . \\
         pendulum-full cartpole-partial examples/tasks/third_party/*.toml
 """
 

@@ -1,6 +1,6 @@
 """float64 vs float32: the same noiseless solve in both precisions.
 
-    python examples/precision.py [TASK]
+    python benchmarks/precision.py [TASK]
 
 Each precision runs in its own process (``PODILQR_X64`` is read at import).
 The reference is the model-based optimum in float64.

@@ -10,8 +10,8 @@ Two questions (docs/robustness.md, "Mirrored perturbations"):
    line (default: the partially observed acrobot), solved with the defaults and
    with ``mirrored=True``, against the model-based reference.
 
-    python examples/mirrored_study.py --out runs/mirrored            # both parts
-    python examples/mirrored_study.py --out runs/mirrored --part noisy --seeds 2
+    python benchmarks/mirrored_study.py --out runs/mirrored            # both parts
+    python benchmarks/mirrored_study.py --out runs/mirrored --part noisy --seeds 2
 
 Prints a Markdown table per part and writes ``<out>/rows.json``.
 """

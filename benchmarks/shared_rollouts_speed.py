@@ -8,8 +8,8 @@ interleaved so both see the same load. Prints the milliseconds per
 iteration of every timed solve and the ratio of the best of each
 (docs/performance.md):
 
-    PODILQR_CACHE=0 python examples/shared_rollouts_speed.py cartpole-partial 20 3
-    PODILQR_CACHE=0 python examples/shared_rollouts_speed.py examples/tasks/third_party/dmc_cartpole_swingup.toml 10 2
+    PODILQR_CACHE=0 python benchmarks/shared_rollouts_speed.py cartpole-partial 20 3
+    PODILQR_CACHE=0 python benchmarks/shared_rollouts_speed.py examples/tasks/third_party/dmc_cartpole_swingup.toml 10 2
 """
 
 from __future__ import annotations

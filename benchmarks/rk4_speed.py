@@ -1,6 +1,6 @@
 """Run time of ``rk4.step`` against ``mjx.step``: 32 rollouts of 50 steps of RK4 models.
 
-    PODILQR_CACHE=0 python examples/rk4_speed.py examples/tasks/third_party/dmc_cartpole_swingup.toml \\
+    PODILQR_CACHE=0 python benchmarks/rk4_speed.py examples/tasks/third_party/dmc_cartpole_swingup.toml \\
         examples/tasks/third_party/gym_inverted_pendulum_balance.toml examples/tasks/third_party/gym_hopper_balance.toml
 
 Prints, per task file, the best of five timed calls of each compiled batch (docs/performance.md).

@@ -10,7 +10,7 @@ saturated, the rank the fit kept, the share of rollouts whose applied control
 moved at all, and what a short step of each model's backward pass does to the
 true cost against what the model predicted.
 
-    python examples/saturated_sysid.py          # about 1 min on 2 cores
+    python benchmarks/saturated_sysid.py          # about 1 min on 2 cores
 """
 
 import os
@@ -30,7 +30,7 @@ from podilqr_jax.sim.rollout import Policy, perturbation_rollouts
 from podilqr_jax.task.taskfile import load_task
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-TASK = os.path.join(HERE, "tasks", "third_party", "dmc_cartpole_swingup.toml")
+TASK = os.path.join(HERE, os.pardir, "examples", "tasks", "third_party", "dmc_cartpole_swingup.toml")
 
 
 def main() -> None:

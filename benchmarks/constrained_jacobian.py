@@ -8,7 +8,7 @@ is compared with central finite differences of the same control step; the
 error shrinks as eps^2, so the derivative is that of the simulated dynamics
 (docs/third_party.md).
 
-    python examples/constrained_jacobian.py
+    python benchmarks/constrained_jacobian.py
 """
 
 import os

@@ -1,6 +1,6 @@
 """The table of docs/results.md: every bundled task, POD-iLQR vs model-based.
 
-python examples/results_table.py > table.md
+python benchmarks/results_table.py > table.md
 """
 
 import podilqr_jax as pj

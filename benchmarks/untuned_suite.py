@@ -7,9 +7,9 @@ process (two at a time) and the table (POD-iLQR over the model-based
 reference from the same start, which passes at <= 1.01) goes into
 docs/robustness.md between its markers.
 
-    python examples/untuned_suite.py               # about 15 min on 2 cores
-    python examples/untuned_suite.py --only acrobot_partial,dmc_cartpole_swingup
-    python examples/untuned_suite.py --table-only  # rebuild the table from runs/untuned/
+    python benchmarks/untuned_suite.py               # about 15 min on 2 cores
+    python benchmarks/untuned_suite.py --only acrobot_partial,dmc_cartpole_swingup
+    python benchmarks/untuned_suite.py --table-only  # rebuild the table from runs/untuned/
 
 Results go to runs/untuned/STEM/result.json (and log.txt).
 """

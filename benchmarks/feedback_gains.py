@@ -1,6 +1,6 @@
 """Are the learnt gains as good as the exact ones? Closed-loop cost under actuator noise.
 
-    python examples/feedback_gains.py [TASK] [HORIZON]     (default pendulum-partial 10)
+    python benchmarks/feedback_gains.py [TASK] [HORIZON]     (default pendulum-partial 10)
 
 Solves TASK with POD-iLQR at the task's sigma, with variant=feedback, and at
 sigma/100, and the model-based reference; then runs 64 episodes per PRNG key

@@ -8,7 +8,7 @@ then the same solve again in the same process (compiled: milliseconds per
 iteration), and the final cost of both, which must agree. Prints a Markdown
 table (docs/performance.md):
 
-    python examples/xla_options_speed.py pendulum-full:4096 cartpole-full:1024 cartpole-partial:40
+    python benchmarks/xla_options_speed.py pendulum-full:4096 cartpole-full:1024 cartpole-partial:40
 """
 
 from __future__ import annotations

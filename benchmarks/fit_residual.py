@@ -7,7 +7,7 @@ that ``adapt_sigma`` compares it with (``sysid.fit_residual``, the numbers
 the solver reads; ``identify.sigma.adapted_sigma``). Curvature makes rho grow like
 sigma (like sigma^2 with ``--mirrored``), round-off like 1 / sigma.
 
-    python examples/fit_residual.py [TASK or task file] [--mirrored]   # default: dm_control's cart-pole
+    python benchmarks/fit_residual.py [TASK or task file] [--mirrored]   # default: dm_control's cart-pole
 """
 
 import argparse
@@ -24,7 +24,7 @@ from podilqr_jax.sim.rollout import open_loop_policy, perturbation_rollouts, rol
 from podilqr_jax.task.taskfile import load_task
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-DEFAULT = os.path.join(HERE, "tasks", "third_party", "dmc_cartpole_swingup.toml")
+DEFAULT = os.path.join(HERE, os.pardir, "examples", "tasks", "third_party", "dmc_cartpole_swingup.toml")
 SIGMAS = (1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 
 

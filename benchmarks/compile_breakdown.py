@@ -10,8 +10,8 @@ seconds add up to more than the wall time; ``PODILQR_COMPILE_AHEAD=0`` gives
 the one-after-the-other figures. ``PYTHONPATH`` of another
 checkout measures that one (as in docs/performance.md):
 
-    PODILQR_CACHE=0 python examples/compile_breakdown.py doublependulum-partial --method model-based
-    PODILQR_CACHE=0 PYTHONPATH=/tmp/before python examples/compile_breakdown.py cartpole-partial
+    PODILQR_CACHE=0 python benchmarks/compile_breakdown.py doublependulum-partial --method model-based
+    PODILQR_CACHE=0 PYTHONPATH=/tmp/before python benchmarks/compile_breakdown.py cartpole-partial
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """How close are POD-iLQR's learnt gains to the true LQR law on a noisy linear system?
 
-    python examples/lq_gains.py [--n-s 100,400] [--seeds 0,1,2]
+    python benchmarks/lq_gains.py [--n-s 100,400] [--seeds 0,1,2]
 
 The system is the test suite's MuJoCo mass on a spring (tests/test_policy.py:
 slide joint, Euler, exactly linear), with start deviation std 0.05 and

@@ -8,11 +8,11 @@ first run pays), and writes the table of docs/third_party.md (between its
 ``gallery`` markers) and one trajectory figure per model under
 docs/figures/third_party/.
 
-    python examples/third_party_gallery.py                      # all, then the table
-    python examples/third_party_gallery.py --only dmc_pendulum_swingup
-    python examples/third_party_gallery.py --table-only         # rebuild from runs/
-    python examples/third_party_gallery.py --probe              # which models of both packages load
-    python examples/third_party_gallery.py --compile-table      # where the compile time went (from runs/)
+    python benchmarks/third_party_gallery.py                      # all, then the table
+    python benchmarks/third_party_gallery.py --only dmc_pendulum_swingup
+    python benchmarks/third_party_gallery.py --table-only         # rebuild from runs/
+    python benchmarks/third_party_gallery.py --probe              # which models of both packages load
+    python benchmarks/third_party_gallery.py --compile-table      # where the compile time went (from runs/)
 
 Results go to runs/third_party/NAME/result.json (and .log).
 """

@@ -1,7 +1,7 @@
 """Every bad input we tried on `podilqr solve`, and what the user sees.
 
-    python examples/bad_input_table.py                 # print the table
-    python examples/bad_input_table.py --write docs/bad_input.md
+    python docs/bad_input_table.py                 # print the table
+    python docs/bad_input_table.py --write docs/bad_input.md
 
 Each case writes its files into a fresh temporary folder, puts a result file
 there that must survive untouched, runs the CLI in-process (the same
@@ -208,7 +208,7 @@ def table(outcomes: list[Outcome]) -> str:
 
 HEADER = """# Bad input: what the user sees
 
-Every case below was run by `python examples/bad_input_table.py --write docs/bad_input.md`,
+Every case below was run by `python docs/bad_input_table.py --write docs/bad_input.md`,
 which wrote this page: the command `podilqr solve` with a task file (or options)
 broken in one way, in a folder that already held a `result.json`. Every case
 exits with a non-zero status (2 for input errors, as argparse does for its usage

@@ -1,8 +1,8 @@
 """Fully observed cart-pole under the paper's noise, `feedback` variant: how the
 final true cost approaches the optimum as the sysid rollouts n_s grow.
 
-    python examples/noise_n_s.py                     # ~4 min on 2 CPU cores
-    python examples/noise_n_s.py --estimator iv      # the same with instrumental variables
+    python benchmarks/noise_n_s.py                     # ~4 min on 2 CPU cores
+    python benchmarks/noise_n_s.py --estimator iv      # the same with instrumental variables
 
 Prints, per n_s, the final true cost / model-based optimum for seeds 0 and 1 and
 the mean over the last 50 iterations (docs/noise.md, "Does Theorem 1 hold?").

@@ -1,6 +1,6 @@
 """The learnt controller, measured: closed-loop cost of POD-iLQR's policy over the model-based one.
 
-    python examples/controller_quality.py [--tasks pendulum-full,...] [--set mirrored=true ...]
+    python benchmarks/controller_quality.py [--tasks pendulum-full,...] [--set mirrored=true ...]
 
 For each task: solve with POD-iLQR (defaults, plus any ``--set``) and with the
 model-based reference, then run the same 128 episodes (PRNG key 1) of both
