@@ -8,7 +8,7 @@ one sample varies by 20-30 % on a shared machine. The stages compile side
 by side before the first iteration (``podilqr_jax/sim/ahead.py``), so their
 seconds add up to more than the wall time; ``PODILQR_COMPILE_AHEAD=0`` gives
 the one-after-the-other figures. ``PYTHONPATH`` of another
-checkout measures that one (as in docs/performance.md):
+checkout measures that one (as in benchmarks/journal.md):
 
     PODILQR_CACHE=0 python benchmarks/compile_breakdown.py doublependulum-partial --method model-based
     PODILQR_CACHE=0 PYTHONPATH=/tmp/before python benchmarks/compile_breakdown.py cartpole-partial

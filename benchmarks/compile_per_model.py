@@ -8,7 +8,7 @@ table of ``Result.compile_s`` (trace + lower + compile; a compile ahead,
 wall time (``Result.wall_s``: the compile and one iteration; the same
 measure for a checkout whose ``compile_s`` counts otherwise). ``--source DIR`` runs
 the package from another checkout (``PYTHONPATH=DIR``), which is how
-docs/performance.md puts the compile of an older commit beside this one in one
+benchmarks/journal.md puts the compile of an older commit beside this one in one
 run, model by model, interleaved, so both see the same machine load:
 
     git worktree add /tmp/before <commit>

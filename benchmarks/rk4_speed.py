@@ -3,7 +3,7 @@
     PODILQR_CACHE=0 python benchmarks/rk4_speed.py examples/tasks/third_party/dmc_cartpole_swingup.toml \\
         examples/tasks/third_party/gym_inverted_pendulum_balance.toml examples/tasks/third_party/gym_hopper_balance.toml
 
-Prints, per task file, the best of five timed calls of each compiled batch (docs/performance.md).
+Prints, per task file, the best of five timed calls of each compiled batch (benchmarks/journal.md).
 """
 
 import sys

@@ -6,7 +6,7 @@ calls of the line search's width) and with ``=0`` (each stage its own
 rollouts), each compiled once first, then ``ROUNDS`` timed solves of each,
 interleaved so both see the same load. Prints the milliseconds per
 iteration of every timed solve and the ratio of the best of each
-(docs/performance.md):
+(benchmarks/journal.md):
 
     PODILQR_CACHE=0 python benchmarks/shared_rollouts_speed.py cartpole-partial 20 3
     PODILQR_CACHE=0 python benchmarks/shared_rollouts_speed.py examples/tasks/third_party/dmc_cartpole_swingup.toml 10 2

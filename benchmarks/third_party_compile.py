@@ -5,7 +5,7 @@ takes RK4 steps through ``rk4.step``; the last row steps through ``mjx.step``
 as before that change) of
 dm_control's cartpole.xml and its ``jax.jacfwd`` (what the model-based
 reference compiles) for variants of the model, one option changed at a time,
-and prints a Markdown table (docs/performance.md). Run it with the persistent
+and prints a Markdown table (benchmarks/journal.md). Run it with the persistent
 compilation cache off, so every compile is cold:
 
     PODILQR_CACHE=0 python benchmarks/third_party_compile.py

@@ -6,7 +6,7 @@ defaults (``PODILQR_XLA_DEFAULTS=1``), interleaved so each pair sees the same
 load: a solve of ``--iterations`` iterations at ``--n-s`` (its ``compile_s``),
 then the same solve again in the same process (compiled: milliseconds per
 iteration), and the final cost of both, which must agree. Prints a Markdown
-table (docs/performance.md):
+table (benchmarks/journal.md):
 
     python benchmarks/xla_options_speed.py pendulum-full:4096 cartpole-full:1024 cartpole-partial:40
 """

@@ -1,6 +1,6 @@
 """Several processes: one sharded solve over 2 CPU processes on localhost
 (jax.distributed, gloo collectives) gives the single process's result to
-round-off (docs/performance.md, "Several hosts")."""
+round-off (benchmarks/journal.md, "Several hosts")."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """``rk4.step``: MuJoCo's RK4 with one compiled forward, against ``mjx.step``.
 
-The rewrite exists for compile time (docs/performance.md); these tests hold it
+The rewrite exists for compile time (benchmarks/journal.md); these tests hold it
 to MJX's own RK4 step, to round-off, on a model that exercises every path of
 the position update (a free joint's quaternion, a hinge against its limit, a
 contact with the floor, an actuator with an activation-free gain) and on a

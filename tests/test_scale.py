@@ -1,7 +1,7 @@
 """Scale: chunked sysid batches and sharding over several devices.
 
 The speed and memory figures are in benchmarks (``podilqr bench``,
-docs/performance.md); here: chunking does not change the result, and a solve
+benchmarks/journal.md); here: chunking does not change the result, and a solve
 sharded over 4 (virtual CPU) devices gives the same result as on one.
 """
 

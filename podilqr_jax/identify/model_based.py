@@ -74,7 +74,7 @@ def linearise(
     # The same columns as ``vmap(jacfwd(f))`` to round-off (the model-based
     # solves of the bundled tasks end at the same costs to 1e-15 relative),
     # with one batching level instead of two: a cheaper trace and XLA compile
-    # (docs/performance.md). The primal is recomputed per column.
+    # (benchmarks/journal.md). The primal is recomputed per column.
     #
     # On a contact-rich model the batch costs more than it saves: vmap turns
     # the constraint solver's loops into masked ones, and the batched JVP of
@@ -82,7 +82,7 @@ def linearise(
     # one unbatched JVP in a loop, which takes 1.0-1.35x the batch's time
     # there (dm_control's finger: 2-2.6x, 1.05-1.45x, and the loop runs 2-3x
     # faster). Without contacts the batch runs 2-4x faster, so it stays
-    # (docs/performance.md).
+    # (benchmarks/journal.md).
     T, nx, nu = u_bar.shape[0], dims.nx, dims.nu
     # A free or ball joint's state directions are the tangent space's 2 nv
     # (module docstring): nd columns per step, nx on hinges and slides.
@@ -101,7 +101,7 @@ def linearise(
     if jacobian == "differences":
         # Both sides of every column as one batch of 2 T (nx + nu) steps: one
         # copy of the step in the program (the forward-mode program holds the
-        # step and its tangent; docs/performance.md).
+        # step and its tangent; benchmarks/journal.md).
         if curved:
             x_pm = tangent.integrate(dims, jnp.concatenate([x_rep, x_rep]), h * jnp.concatenate([e, -e])[:, :nd])
         else:

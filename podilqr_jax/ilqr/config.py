@@ -185,7 +185,7 @@ class SolverConfig:
         ``exact`` or ``differences`` force one. At an active contact the
         forward-mode derivative is NaN under the elliptic friction cone, at
         zero angular rate a quaternion's is zero, and its program compiles
-        for about twice as long (docs/performance.md).
+        for about twice as long (benchmarks/journal.md).
         POD-iLQR does not read it.
     """
 

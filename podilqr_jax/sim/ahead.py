@@ -2,7 +2,7 @@
 
 A cold solve compiles its stages one after the other as the first iteration
 reaches them, and on a CPU XLA compiles each on one core: on 2 cores the
-second core idles through most of the compile (docs/performance.md). Before
+second core idles through most of the compile (benchmarks/journal.md). Before
 the first iteration the driver therefore runs the iteration *dry*
 (``driver.compile_ahead``): inside :func:`dry_run` every call of a stage
 (``stages.stage``) is traced and lowered at once, handed to a pool of

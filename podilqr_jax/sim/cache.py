@@ -3,7 +3,7 @@
 The package points JAX's persistent compilation cache at a folder in
 the user's cache directory, so a second run of the same task (same shapes,
 same JAX, same machine) loads the solver's executables from disk instead of
-compiling them (docs/performance.md measures what it saves):
+compiling them (benchmarks/journal.md measures what it saves):
 
 - the folder: ``$PODILQR_CACHE_DIR`` when set, else
   ``$XDG_CACHE_HOME/podilqr_jax/jax``, else ``~/.cache/podilqr_jax/jax``;

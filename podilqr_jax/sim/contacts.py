@@ -23,11 +23,11 @@ the constraint solver's loops into masked ones). Three defaults follow:
   under the elliptic friction cone (dm_control's finger), and its program,
   the step with its tangent, took 1.9-2.1x as long in XLA's compiler as
   the differences' one copy of the step, whose trace the line search's
-  program shares (docs/performance.md);
+  program shares (benchmarks/journal.md);
 - it computes those columns one at a time (:func:`one_at_a_time`): a
   ``lax.map`` of one unbatched step (or JVP) instead of one ``vmap`` of all
   (``model_based.linearise``). Its line search stays one batch: one
-  candidate at a time ran 1.4x slower on the hopper (docs/performance.md).
+  candidate at a time ran 1.4x slower on the hopper (benchmarks/journal.md).
 """
 
 from __future__ import annotations

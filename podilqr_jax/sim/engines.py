@@ -17,7 +17,7 @@ shard), and on a single CPU device picks by the model (:func:`auto_engine`):
   result in 90 s) against the native engine's 0.3-1 s.
 
 Measured by ``podilqr bench --sections engines`` on 2 cores
-(docs/performance.md): the rule picks the faster engine on 18 of the 20
+(benchmarks/journal.md): the rule picks the faster engine on 18 of the 20
 models there. The two it misses, dm_control's acrobot and cart-pole (RK4, 2
 degrees of freedom), step 1.36x and 1.20x faster on MJX; over a solve of a
 few hundred iterations that gain is of the order of MJX's 3 s longer compile.

@@ -8,7 +8,7 @@ therefore compiles four copies of ``mjx.forward`` (collision, the constraint
 solver's nested loops, sensors) into every program that steps the model,
 and, under ``jax.jacfwd`` in the model-based reference, four copies of their
 tangents. That is why those models compiled several times longer than Euler
-ones (docs/performance.md).
+ones (benchmarks/journal.md).
 
 ``step`` below takes the same step with one copy: a ``lax.scan`` over the
 four stages of the classical tableau (stage i is evaluated at

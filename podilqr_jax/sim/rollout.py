@@ -22,7 +22,7 @@ receding-horizon segments. It takes a *controller* (``start``, ``command``,
 A batch is one ``vmap`` (:func:`run_batch`) over the leading axis of whichever
 inputs carry one; nothing loops over rollouts in Python.
 
-Scale (docs/performance.md): with several devices (``jax.devices()``: GPUs,
+Scale (benchmarks/journal.md): with several devices (``jax.devices()``: GPUs,
 or CPU devices from ``XLA_FLAGS=--xla_force_host_platform_device_count=N``,
 or every host's devices after ``jax.distributed.initialize()``) the sysid and
 line-search batches are sharded over a one-axis device mesh (``batch_sharding``)
@@ -390,7 +390,7 @@ def bytes_per_rollout(dims: EnvDims, data: EnvData, noisy: bool = True, record_s
     runs: its MJX data (carry and a step's temporaries, counted 8 times), its
     inputs and outputs (with ``record_state``, as in the line search, also
     its states). Used to turn a memory budget into a chunk size; the
-    benchmark (docs/performance.md) measures the real peak."""
+    benchmark (benchmarks/journal.md) measures the real peak."""
     if dims.native is not None:  # the carry is MuJoCo's state vector; MjData lives on the host, per thread
         mjx_bytes = 8 * dims.native.nstate
     else:

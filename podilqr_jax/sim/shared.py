@@ -4,7 +4,7 @@ On a CPU most of a cold solve's wait is XLA compiling the rollouts: the
 sysid batch (``rollout.perturbation_rollouts``) and the line search
 (``ilqr.line_search``) each hold their own copy of the vmapped MJX step, and
 for a contact-rich model each copy compiles for seconds to tens of seconds
-(docs/performance.md). Both run the same closed-loop rollout
+(benchmarks/journal.md). Both run the same closed-loop rollout
 
   u_t = clip(u_bar_t + offset_t + K_t (Z_t - Z_bar_t) + du_t),
 
@@ -42,7 +42,7 @@ When: :func:`width` says, once per solve, from ``PODILQR_SHARED_ROLLOUTS``
   overhead of a scan of small operations, the constraint solver's loops
   running to the slowest rollout), so the 4 calls of 10 that replace one of 40 made an iteration
   1.2-1.7x slower on the bundled tasks and dm_control's cart-pole (0-1
-  rows; docs/performance.md), every iteration of every run, while the
+  rows; benchmarks/journal.md), every iteration of every run, while the
   compile they save is paid once per machine (the persistent cache keeps
   it). Where the constraint solver carries contact rows a rollout costs far
   more than a call's overhead: dmc_finger_turn (93 rows) and Gymnasium's

@@ -3,7 +3,7 @@
 JAX's persistent compilation cache (``cache``) keeps compiled XLA programs,
 keyed on the lowered module, so a second run still traces and lowers every
 stage to find its key: for an MJX model that is most of a warm run's compile
-time (tracing ``mjx.step`` and its ``jax.jacfwd``, docs/performance.md).
+time (tracing ``mjx.step`` and its ``jax.jacfwd``, benchmarks/journal.md).
 ``stage`` jits a function like ``jax.jit(fun, static_argnames=...)`` and, when
 the package's cache is on, also keeps each traced stage on disk with
 ``jax.export``:

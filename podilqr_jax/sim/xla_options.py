@@ -10,7 +10,7 @@ these programs, run them no slower:
   ``cartpole-partial`` drops from 9.0 to 6.3 s (POD-iLQR) and from 11.3 to
   8.3 s (model-based), and a noiseless 1024-rollout cart-pole iteration runs
   in 235 instead of 282 ms, with the same costs to every printed digit
-  (docs/performance.md gives the commands and the table for every task).
+  (benchmarks/journal.md gives the commands and the table for every task).
 
 The options go into every top-level jitted program of the package that runs
 MJX (its stages, ``rollout_batch``, ``observations_of``, the episode

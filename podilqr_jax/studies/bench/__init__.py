@@ -12,7 +12,7 @@ docs/tasks.md. Each also runs on its own::
     python -m podilqr_jax.studies.bench.rollout_throughput --batch 1024
 
 Results and their discussion live in the repository's benchmarks/ and
-docs/performance.md.
+benchmarks/journal.md.
 """
 
 from .suite import BenchSettings, main, run
