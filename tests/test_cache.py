@@ -98,12 +98,11 @@ def test_warm_run_loads_from_disk_and_gives_the_same_result(tmp_path):
     assert warm["loads"] == warm["compiles"] == cold["compiles"]
     assert warm["costs"] == cold["costs"] and warm["K"] == cold["K"]  # bit for bit
     # The traced stages too (podilqr_jax/sim/stages.py): the cold run exports the
-    # rollouts the sysid batch and the line search share (sim/shared.py) and the
-    # programs around them (the sysid's inputs and outcome, the line search's),
-    # the fit and the backward pass; the warm run reads all of them and traces none.
-    assert cold["fallbacks"] == {} and cold["stages"] == {"exported": 7, "loaded": 0}
-    assert warm["stages"] == {"exported": 0, "loaded": 7}
-    assert len(os.listdir(os.path.join(folder, "podilqr-stages"))) == 7
+    # sysid batch, the fit, the backward pass and the line search; the warm run
+    # reads all of them and traces none.
+    assert cold["fallbacks"] == {} and cold["stages"] == {"exported": 4, "loaded": 0}
+    assert warm["stages"] == {"exported": 0, "loaded": 4}
+    assert len(os.listdir(os.path.join(folder, "podilqr-stages"))) == 4
 
     # Two stage files swapped (or damaged): each is dropped with a line saying
     # so and traced afresh, and the run gives the same numbers.
@@ -114,7 +113,7 @@ def test_warm_run_loads_from_disk_and_gives_the_same_result(tmp_path):
     os.rename(pb, pa)
     os.rename(pa + ".x", pb)
     swapped = _run(SOLVE, tmp_path, PODILQR_CACHE_DIR=folder, stderr_to=(err := []))
-    assert swapped["stages"] == {"exported": 2, "loaded": 5}
+    assert swapped["stages"] == {"exported": 2, "loaded": 2}
     assert swapped["costs"] == cold["costs"] and swapped["K"] == cold["K"]
     assert err[0].count("dropped the cached stage") == 2 and "another key" in err[0]
 
@@ -122,7 +121,7 @@ def test_warm_run_loads_from_disk_and_gives_the_same_result(tmp_path):
     # without write permission): everything loads, nothing is written.
     before = sorted(os.listdir(folder)), sorted(os.listdir(stage_dir))
     shared = _run(SOLVE, tmp_path, PODILQR_CACHE_DIR=folder, PODILQR_CACHE="read")
-    assert shared["stages"] == {"exported": 0, "loaded": 7}
+    assert shared["stages"] == {"exported": 0, "loaded": 4}
     assert shared["loads"] == shared["compiles"] == cold["compiles"]
     assert shared["costs"] == cold["costs"] and shared["K"] == cold["K"]
     assert (sorted(os.listdir(folder)), sorted(os.listdir(stage_dir))) == before

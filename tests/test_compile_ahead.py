@@ -18,8 +18,6 @@ from podilqr_jax.sim import ahead
 # ``call`` for a stage run from its exported program (the package's cache on).
 STAGE_PROGRAMS = {
     "perturbation_rollouts", "fit_information_model", "backward_pass", "line_search", "call",
-    # the rollouts the sysid batch and the line search share (sim/shared.py) and the programs around them
-    "rollout_group", "sysid_inputs", "sysid_outcome", "line_search_inputs", "line_search_outcome",
 }  # fmt: skip
 COMPILED = re.compile(r"Finished XLA compilation of jit\((\S+)\)")
 

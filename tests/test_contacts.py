@@ -1,13 +1,11 @@
 """Contact-rich models (sim/contacts.py): the model-based reference's Jacobians
-one column at a time, equal to the batched ones on a model with an active
-contact, and by central differences, equal to forward mode where that is
-finite and finite where it is not (the elliptic cone)."""
+by central differences, equal to forward mode where that is finite (at an
+active contact too) and finite where it is not (the elliptic cone)."""
 
 from __future__ import annotations
 
 import os
 
-import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -36,10 +34,6 @@ RESTING_ARM = """<mujoco>
 RESTING = [-0.145, 0.0]  # qpos: the foot 5 mm into the floor
 HORIZON = 6
 
-# One JVP at a time against one vmap of all: the same operations, grouped
-# otherwise by XLA. Measured on this arm: 7.5e-14 at a largest entry of 24
-# (3e-15 relative; Gymnasium's hopper: 5.7e-14 at 43). Required: 1e-12 relative.
-LOOP_VS_BATCH_REL = 1e-12
 # Central differences (h = eps^(1/3)) against forward mode: truncation h^2 and
 # round-off eps / h, both near 1e-10 of the entries. Measured: the resting arm
 # 9.6e-9 at a largest entry of 24 (4e-10 relative), the cart-pole and the
@@ -67,20 +61,6 @@ def _exact_of(monkeypatch, env, cfg=None):
     return captured["identify"]
 
 
-def test_only_a_contact_rich_model_on_one_cpu_runs_its_jacobians_one_at_a_time(monkeypatch):
-    pendulum = pj.make_task("pendulum-full")
-    assert contacts.constraint_rows(pendulum.data.model) == 0
-    assert not contacts.one_at_a_time(pendulum.data.model)
-    assert _exact_of(monkeypatch, pendulum).one_at_a_time is False
-    hopper = _hopper()
-    assert contacts.contact_rich(hopper.data.model)
-    assert contacts.one_at_a_time(hopper.data.model)
-    assert _exact_of(monkeypatch, hopper).one_at_a_time is True
-    # On a GPU the batch is what the device is for.
-    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    assert not contacts.one_at_a_time(hopper.data.model)
-
-
 def _resting_arm(tmp_path, cone="pyramidal"):
     """The arm with its foot on the floor, its task arrays on the device and a nominal of HORIZON steps."""
     path = tmp_path / f"resting_arm_{cone}.xml"
@@ -90,7 +70,8 @@ def _resting_arm(tmp_path, cone="pyramidal"):
     probe.qpos[:] = RESTING
     mujoco.mj_forward(env.mj_model, probe)
     assert probe.ncon >= 1  # the foot touches the floor
-    assert contacts.constraint_rows(env.data.model) < contacts.MANY_ROWS  # the solver would batch: called directly
+    # Few rows: the solver's `auto` would take forward mode here, so the tests call `linearise` directly.
+    assert contacts.constraint_rows(env.data.model) < contacts.MANY_ROWS
     dims, data = env.dims, on_device(env.data)
     return dims, data, *_nominal(dims, data, np.linspace(-0.5, 0.5, HORIZON * dims.nu).reshape(HORIZON, dims.nu))
 
@@ -114,22 +95,9 @@ def _assert_close(model, reference, rel):
 
 @pytest.fixture(scope="module")
 def resting_arm(tmp_path_factory):
-    """The pyramidal-cone resting arm and its exact (forward-mode, batched)
-    linearisation, shared by the tests that need both (one compile)."""
+    """The pyramidal-cone resting arm and its exact (forward-mode) linearisation."""
     dims, data, x_bar, u_bar = _resting_arm(tmp_path_factory.mktemp("arm"))
     return dims, data, x_bar, u_bar, pj.linearise(dims, data, x_bar, u_bar)
-
-
-def test_the_jacobians_one_at_a_time_equal_the_batched_ones_at_an_active_contact(resting_arm):
-    dims, data, x_bar, u_bar, batched = resting_arm
-    looped = pj.linearise(dims, data, x_bar, u_bar, one_at_a_time=True)
-    _assert_close(looped, batched, LOOP_VS_BATCH_REL)
-    # The contact is in the Jacobian: lifted off the floor (the mass matrix
-    # depends on the hinge angle only), the lift's velocity answers the lift's
-    # force otherwise.
-    lifted = pj.linearise(dims, data, x_bar.at[:, 0].add(0.3), u_bar, one_at_a_time=True)
-    on_floor, in_air = float(looped.B[0, 2, 0]), float(lifted.B[0, 2, 0])
-    assert abs(on_floor - in_air) > 0.1 * abs(in_air)
 
 
 def test_auto_linearises_a_contact_rich_model_by_central_differences(monkeypatch):
@@ -161,7 +129,6 @@ def test_central_differences_are_finite_where_the_elliptic_cone_makes_forward_mo
     dims, data, x_bar, u_bar, exact = resting_arm
     differences = pj.linearise(dims, data, x_bar, u_bar, jacobian="differences")
     _assert_close(differences, exact, DIFFERENCES_VS_EXACT_REL)  # at an active contact, pyramidal cone
-    _assert_close(pj.linearise(dims, data, x_bar, u_bar, True, "differences"), differences, LOOP_VS_BATCH_REL)
     dims, data, x_bar, u_bar = _resting_arm(tmp_path, cone="elliptic")
     assert not np.all(np.isfinite(np.asarray(pj.linearise(dims, data, x_bar, u_bar).A)))
     differences = pj.linearise(dims, data, x_bar, u_bar, jacobian="differences")

@@ -3,7 +3,7 @@
 Every import of every module counts, those inside functions too (a lazy
 import is still a dependency of the module's code). A package's
 ``__init__.py`` counts only for what it imports itself: ``from ..sim import
-shared`` is an import of ``sim/shared.py``. The package root
+contacts`` is an import of ``sim/contacts.py``. The package root
 (``podilqr_jax/__init__.py``) is left out: it is the lazy facade that loads
 every public name on first use, above everything, and the one module that
 reads from it, ``_runtime.py``, reads the x64 switch it recorded before JAX

@@ -21,7 +21,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..sim import shared
 from ..sim.rollout import (
     Policy,
     bytes_per_rollout,
@@ -115,8 +114,6 @@ class DataBased:
     chunk: Optional[int]  # the sysid batch's chunk under the memory budget
     to_device: Any  # places a host array as the solver's arrays are placed
     unsaturate: Any = None
-    width: Optional[int] = None  # the rollout program shared with the line search (``sim.shared``), or None
-    zero_offset: Any = None  # [width, T, nu] zeros, with ``width``
 
     @property
     def n_avg(self) -> int:
@@ -132,16 +129,10 @@ class DataBased:
             gains = self.unsaturate(gains, nominal.u_bar)
         policy = Policy(nominal.u_bar, nominal.Z_bar[:-1], gains if closed else self.no_gains)
         sigma_t = self.to_device(sigma * self.units)
-        if self.width is not None:
-            traj = shared.perturbation_rollouts(
-                dims, self.q, cfg.n_s, self.data, policy, key, sigma_t, self.zero_offset,
-                width=self.width, n_avg=self.n_avg, noisy=self.noisy, mirrored=mirrored,
-            )  # fmt: skip
-        else:
-            traj = perturbation_rollouts(
-                dims, self.q, cfg.n_s, self.data, policy, key, sigma_t,
-                n_avg=self.n_avg, noisy=self.noisy, chunk=self.chunk, mirrored=mirrored,
-            )  # fmt: skip
+        traj = perturbation_rollouts(
+            dims, self.q, cfg.n_s, self.data, policy, key, sigma_t,
+            n_avg=self.n_avg, noisy=self.noisy, chunk=self.chunk, mirrored=mirrored,
+        )  # fmt: skip
         traj.z.block_until_ready()
         t1 = time.perf_counter()
         # mirrored rollouts come back as half-differences: deviations about a zero nominal
@@ -170,29 +161,23 @@ class Exact:
     (``model_based.linearise``) of the full-state dynamics, ``jacobian`` (one
     of ``model_based.JACOBIANS``) as ``sim.contacts.jacobian`` resolved the
     setting; ``hint`` says what in the model may make the exact one
-    non-finite; ``one_at_a_time``: the contact-rich model's loop of single
-    columns."""
+    non-finite."""
 
     dims: EnvDims
     data: EnvData
     hint: str = ""
-    one_at_a_time: bool = False  # the columns in a loop, not a batch (``sim.contacts.one_at_a_time``)
     jacobian: str = "exact"
 
     def __call__(self, key: jax.Array, nominal, gains, sigma: float, experiment: Experiment) -> Identified:
         t0 = time.perf_counter()
-        model = linearise(self.dims, self.data, nominal.x_bar, nominal.u_bar, self.one_at_a_time, self.jacobian)
+        model = linearise(self.dims, self.data, nominal.x_bar, nominal.u_bar, self.jacobian)
         problem = linearisation_problem(model)
         return Identified(model, problem, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}, None)
 
 
-def data_based(
-    env: Env, cfg: SolverConfig, q: int, data: EnvData, noisy: bool, width: Optional[int] = None
-) -> DataBased:
+def data_based(env: Env, cfg: SolverConfig, q: int, data: EnvData, noisy: bool) -> DataBased:
     """POD-iLQR's identification of ``env`` (its arrays ``data`` on the device)
-    as ``cfg`` sets it up; ``noisy``: the rollouts draw the task's noise;
-    ``width``: the sysid batch runs through the rollout program of that many
-    rollouts that the line search shares (``sim.shared``)."""
+    as ``cfg`` sets it up; ``noisy``: the rollouts draw the task's noise."""
     dims = env.dims
     nZ = info_dim(dims.nz, dims.nu, q)
     return DataBased(
@@ -214,8 +199,6 @@ def data_based(
         chunk=cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy)),
         to_device=on_device,
         unsaturate=_saturation_guard(data) if cfg.saturated_open_loop and env.limited else None,
-        width=width,
-        zero_offset=None if width is None else on_device(np.zeros((width, dims.horizon, dims.nu))),
     )
 
 

@@ -41,19 +41,13 @@ JACOBIANS = ("exact", "differences")
 """How :func:`linearise` computes the Jacobians (module docstring)."""
 
 
-@stage(static_argnames=("dims", "one_at_a_time", "jacobian"), outputs=(LinearModel,))
-def linearise(
-    dims: EnvDims, data: EnvData, x_bar, u_bar, one_at_a_time: bool = False, jacobian: str = "exact"
-) -> LinearModel:
+@stage(static_argnames=("dims", "jacobian"), outputs=(LinearModel,))
+def linearise(dims: EnvDims, data: EnvData, x_bar, u_bar, jacobian: str = "exact") -> LinearModel:
     """(A_t, B_t) = Jacobians of the control-step map along (x_bar, u_bar).
 
     ``jacobian``: ``exact`` (forward mode) or ``differences`` (central
     differences), module docstring; the solver's ``auto`` picks differences
-    on a contact-rich model (``sim.contacts.jacobian``).
-    ``one_at_a_time``: the T (nx + nu) columns run as a ``lax.map`` of one
-    unbatched JVP (or pair of steps) instead of one ``vmap`` of all; the
-    solver's choice for a contact-rich model on a CPU
-    (``sim.contacts.one_at_a_time``)."""
+    on a contact-rich model (``sim.contacts.jacobian``)."""
     if jacobian not in JACOBIANS:
         raise ValueError(f"`jacobian` must be one of {', '.join(JACOBIANS)}; got {jacobian!r}.")
     d0 = start_data(dims, data)
@@ -75,14 +69,6 @@ def linearise(
     # solves of the bundled tasks end at the same costs to 1e-15 relative),
     # with one batching level instead of two: a cheaper trace and XLA compile
     # (benchmarks/journal.md). The primal is recomputed per column.
-    #
-    # On a contact-rich model the batch costs more than it saves: vmap turns
-    # the constraint solver's loops into masked ones, and the batched JVP of
-    # Gymnasium's hopper traces for 3-4x and compiles for 1.4-1.6x as long as
-    # one unbatched JVP in a loop, which takes 1.0-1.35x the batch's time
-    # there (dm_control's finger: 2-2.6x, 1.05-1.45x, and the loop runs 2-3x
-    # faster). Without contacts the batch runs 2-4x faster, so it stays
-    # (benchmarks/journal.md).
     T, nx, nu = u_bar.shape[0], dims.nx, dims.nu
     # A free or ball joint's state directions are the tangent space's 2 nv
     # (module docstring): nd columns per step, nx on hinges and slides.
@@ -107,7 +93,7 @@ def linearise(
         else:
             x_pm = jnp.concatenate([x_rep + h * e[:, :nx], x_rep - h * e[:, :nx]])
         u_pm = jnp.concatenate([u_rep + h * e[:, nd:], u_rep - h * e[:, nd:]])
-        x_next = jax.lax.map(lambda a: f(*a), (x_pm, u_pm)) if one_at_a_time else jax.vmap(f)(x_pm, u_pm)
+        x_next = jax.vmap(f)(x_pm, u_pm)
         if curved:
             cols = tangent.difference(dims, x_next[: T * n], x_next[T * n :]) / (2.0 * h)
         else:
@@ -116,10 +102,7 @@ def linearise(
         if curved:  # the state's columns along the tangent basis J(x_bar_t), read back through J+(x_bar_t+1)
             J_rep = jnp.repeat(J[:-1], n, axis=0)
             e = jnp.concatenate([jnp.einsum("bij,bj->bi", J_rep, e[:, :nd]), e[:, nd:]], axis=1)
-        if one_at_a_time:
-            cols = jax.lax.map(lambda a: column(*a), (x_rep, u_rep, e))
-        else:
-            cols = jax.vmap(column)(x_rep, u_rep, e)
+        cols = jax.vmap(column)(x_rep, u_rep, e)
         if curved:
             cols = jnp.einsum("bij,bj->bi", jnp.repeat(J_plus[1:], n, axis=0), cols)
     AB = jnp.swapaxes(cols.reshape(T, n, nd), 1, 2)  # [T, nd, nd + nu]

@@ -47,7 +47,7 @@ from .backward import QuadraticCost, Regularisation, backward_pass
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import SolverConfig, reidentify_scale
 from .interrupts import deferred_interrupts
-from .line_search import LineSearchResult, line_search, line_search_grouped
+from .line_search import LineSearchResult, line_search
 from .result import IterationInfo, Result
 from .state import Nominal, SolverState
 from .stopping import Stop
@@ -89,8 +89,6 @@ class Context:
     alphas: Any  # ... on the device, with alpha = 0 last under noise
     ls_rollouts: int
     ls_chunk: Optional[int]
-    ls_width: Optional[int]  # the line search's rollouts run by the program the sysid batch shares (``sim.shared``)
-    zero_du: Any  # [ls_rollouts, T, nu] zeros, with ``ls_width``
     accept_ratio: Any
     zero_k: Any
     no_change: Any
@@ -147,12 +145,7 @@ def measure(ctx: Context, st: SolverState, timing: Timing, policy: Policy, k, co
 
 
 def search(ctx: Context, policy: Policy, k, cost0, dV1, dV2, key) -> LineSearchResult:
-    """The line search as this solve runs it: one stage, or through the rollout program the sysid batch shares."""
-    if ctx.ls_width is not None:
-        return line_search_grouped(
-            ctx.dims, ctx.q, ctx.data, policy, k, ctx.alphas, cost0, dV1, dV2, ctx.accept_ratio, key, ctx.zero_du,
-            ctx.n_fwd, ctx.noisy,
-        )  # fmt: skip
+    """The line search stage with this solve's candidates, batch and chunk."""
     return line_search(
         ctx.dims, ctx.q, ctx.data, policy, k, ctx.alphas, cost0, dV1, dV2, ctx.accept_ratio, key,
         ctx.n_fwd, ctx.noisy, ctx.ls_chunk,

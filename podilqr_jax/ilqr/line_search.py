@@ -18,12 +18,6 @@ It can never be accepted (its predicted decrease is zero), so when nothing is
 accepted the chosen candidate is a fresh measurement of the current policy:
 that is how the driver re-measures a nominal whose cost was a lucky draw.
 
-Where the solve runs the sysid batch and the line search through one compiled
-rollout program (``sim.shared``), the driver calls :func:`line_search_grouped`
-instead: the same candidates, noise and choice as three programs, the inputs
-(:func:`line_search_inputs`), the shared rollouts and the choice
-(:func:`line_search_outcome`).
-
 Memory: a batch larger than ``chunk`` rollouts (the solver's memory budget,
 ``SolverConfig.resolved_chunk``) runs as a ``lax.map`` over chunks
 (``_chunked_candidates``): whole candidates per chunk when a candidate's
@@ -43,7 +37,6 @@ import jax.numpy as jnp
 
 from ..identify.info_state import info_states
 from ..sim.rollout import Policy, Trajectory, average_repeats, shard_batch, simulate
-from ..sim.shared import rollout_group
 from ..sim.stages import stage
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
@@ -104,43 +97,6 @@ def _choose(q, data, traj: Trajectory, alphas, cost0, dV1, dV2, accept_ratio) ->
     chosen = jax.tree_util.tree_map(lambda a: a[i], traj)
     Z = info_states(chosen.z, chosen.u, q)
     return LineSearchResult(accepted, alphas[i], cost[i], chosen, Z, cost, expected, jnp.sum(~finite))
-
-
-@stage(static_argnames=("dims", "n_fwd", "noisy"), outputs=(Disturbance,))
-def line_search_inputs(
-    dims: EnvDims,
-    data: EnvData,
-    k: jnp.ndarray,
-    alphas: jnp.ndarray,
-    key: jax.Array,
-    n_fwd: int = 1,
-    noisy: bool = False,
-) -> tuple[jnp.ndarray, Optional[Disturbance]]:
-    """The candidates' offsets alpha_i k, ``n_fwd`` rows each [n_cand n_fwd, T, nu],
-    and their noise, drawn as :func:`line_search` draws them."""
-    batch = alphas.shape[0] * n_fwd
-    offsets = alphas[:, None, None] * k[None]
-    offsets = jnp.repeat(offsets, n_fwd, axis=0) if n_fwd > 1 else offsets
-    return offsets, (sample(key, data.noise, batch, dims.horizon) if noisy else None)
-
-
-@stage(static_argnames=("q", "n_fwd"), outputs=(LineSearchResult, Trajectory))
-def line_search_outcome(
-    q: int, data: EnvData, traj: Trajectory, alphas, cost0, dV1, dV2, accept_ratio, n_fwd: int = 1
-) -> LineSearchResult:
-    """:func:`line_search`'s result from its candidates' rollouts ``traj`` [n_cand n_fwd, ...]."""
-    return _choose(q, data, average_repeats(traj, n_fwd), alphas, cost0, dV1, dV2, accept_ratio)
-
-
-def line_search_grouped(
-    dims: EnvDims, q: int, data: EnvData, policy: Policy, k, alphas, cost0, dV1, dV2, accept_ratio, key,
-    zero_du: jnp.ndarray, n_fwd: int = 1, noisy: bool = False,
-) -> LineSearchResult:  # fmt: skip
-    """:func:`line_search` (unchunked) with its rollouts run by the program the
-    sysid batch shares (``sim.shared``); ``zero_du`` [n_cand n_fwd, T, nu] zeros."""
-    offsets, noise = line_search_inputs(dims, data, k, alphas, key, n_fwd, noisy)
-    traj = rollout_group(dims, q, data, policy, offsets, zero_du, noise)
-    return line_search_outcome(q, data, traj, alphas, cost0, dV1, dV2, accept_ratio, n_fwd)
 
 
 def _chunked_candidates(

@@ -25,7 +25,7 @@ from ..errors import ConfigError
 from ..identify.identification import Exact, actuator_units, data_based
 from ..identify.info_state import info_dim, observation_selector
 from ..identify.model_based import nonfinite_hint
-from ..sim import contacts, engines, shared
+from ..sim import contacts, engines
 from ..sim.rollout import bytes_per_rollout, on_device
 from ..task.env import Env, mjx_model_of
 from .backward import QuadraticCost, Regularisation
@@ -90,9 +90,8 @@ def solve(
     dims, data = env.dims, on_device(_in_impl(env, cfg.impl))
     noisy = env.noisy and cfg.variant != "nominal"
     n_fwd = cfg.resolved_n_forward()
-    width = _shared_width(dims, data, cfg, noisy, n_fwd)
-    identify = data_based(env, cfg, q, data, noisy, width)
-    ctx = _context("pod-ilqr", env, dims, data, cfg, q, identify, noisy, n_fwd, width)
+    identify = data_based(env, cfg, q, data, noisy)
+    ctx = _context("pod-ilqr", env, dims, data, cfg, q, identify, noisy, n_fwd)
     return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
 
 
@@ -129,31 +128,15 @@ def solve_model_based(
     jacobian = (
         "differences" if native and cfg.jacobian == "auto" else contacts.jacobian(cfg.jacobian, data.model, floating)
     )
-    one_at_a_time = not native and contacts.one_at_a_time(data.model)
-    identify = Exact(dims, data, nonfinite_hint(env.mj_model), one_at_a_time, jacobian)
+    identify = Exact(dims, data, nonfinite_hint(env.mj_model), jacobian)
     ctx = _context("model-based", env, dims, data, cfg, 1, identify, False, 1)
     return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
 
 
-def _shared_width(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int) -> Optional[int]:
-    """The rollouts of the program the sysid batch and the line search share, or None (``sim.shared``;
-    not on the native engine, whose programs compile in a fraction of a second)."""
-    if dims.native is not None:
-        return None
-    ls_rollouts = (cfg.n_alphas + (1 if noisy else 0)) * n_fwd
-    sysid_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy))
-    ls_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1)
-    rows = contacts.constraint_rows(data.model)
-    return shared.width(cfg.n_s, cfg.resolved_n_avg(), ls_rollouts, sysid_chunk, ls_chunk, rows)
-
-
-def _context(
-    method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int, ls_width: Optional[int] = None
-) -> Context:
+def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int) -> Context:
     """Everything the driver keeps fixed; ``dims, data`` are the task as the
     solver sees it (its data committed to the device), ``env`` as the user gave
-    it; ``ls_width``: the line search runs through the rollout program it
-    shares with the sysid batch (``sim.shared``)."""
+    it."""
     # Only a data-based fit has something to re-draw; under noise a rejected step never stops the solve.
     reidentify = cfg.reidentify if method == "pod-ilqr" and not noisy else 0
     box = (data.u_low, data.u_high) if env.limited else (None, None)
@@ -184,8 +167,6 @@ def _context(
         alphas=alphas,
         ls_rollouts=ls_rollouts,
         ls_chunk=None if ls_chunk >= ls_rollouts else ls_chunk,  # one compile for every budget that fits
-        ls_width=ls_width,
-        zero_du=None if ls_width is None else on_device(np.zeros((ls_width, dims.horizon, dims.nu))),
         accept_ratio=on_device(cfg.accept_ratio),
         zero_k=on_device(np.zeros((dims.horizon, dims.nu))),
         no_change=on_device(0.0),

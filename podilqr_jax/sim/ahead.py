@@ -77,7 +77,7 @@ class DryRun:
         stage's outputs are)."""
         memo = _memo(name, args, kwargs)
         if memo is not None and memo in self.outputs:
-            out_info = self.outputs[memo]  # the same program again (the shared rollouts): compiling once
+            out_info = self.outputs[memo]  # the same program again: compiling once
         else:
             lowered = target.lower(*args, **kwargs)
             self.compiles.append((name, self.pool.submit(lowered.compile)))

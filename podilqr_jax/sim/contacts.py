@@ -9,25 +9,16 @@ dm_control and Gymnasium models without a floor) or at least 38 (the
 Gymnasium hopper 38, dm_control's finger 93; from dm_control's suite also
 walker 62, ball-in-cup 65, hopper 88, cheetah 146, humanoid 303).
 
-On a CPU a model with contacts (:func:`contact_rich`, ``MANY_ROWS`` rows or
-more) gains little from batching: a step costs far more than the
-per-operation overhead that batching amortises, while a batched program of
-the contact-rich step traces and compiles for much longer (``vmap`` turns
-the constraint solver's loops into masked ones). Three defaults follow:
-
-- POD-iLQR runs its sysid batch through the line search's rollout program in
-  several calls (``sim.shared``);
-- the model-based reference linearises by central differences of the step
-  (:func:`jacobian`, unless the solve's ``jacobian`` setting says
-  otherwise): MJX's forward-mode derivative at an active contact is NaN
-  under the elliptic friction cone (dm_control's finger), and its program,
-  the step with its tangent, took 1.9-2.1x as long in XLA's compiler as
-  the differences' one copy of the step, whose trace the line search's
-  program shares (benchmarks/journal.md);
-- it computes those columns one at a time (:func:`one_at_a_time`): a
-  ``lax.map`` of one unbatched step (or JVP) instead of one ``vmap`` of all
-  (``model_based.linearise``). Its line search stays one batch: one
-  candidate at a time ran 1.4x slower on the hopper (benchmarks/journal.md).
+On a model with contacts (:func:`contact_rich`, ``MANY_ROWS`` rows or
+more) the model-based reference on MJX linearises by central differences of
+the step (:func:`jacobian`, unless the solve's ``jacobian`` setting says
+otherwise): MJX's forward-mode derivative at an active contact is NaN under
+the elliptic friction cone (dm_control's finger), and its program, the step
+with its tangent, took 1.9-2.1x as long in XLA's compiler as the
+differences' one copy of the step, whose trace the line search's program
+shares (benchmarks/journal.md). Under ``engine = "auto"`` such a model runs
+on the native engine on a CPU (``sim.engines``); this applies where MJX
+runs it (a GPU, or ``engine = "mjx"``).
 """
 
 from __future__ import annotations
@@ -73,10 +64,3 @@ def jacobian(setting: str, model, floating: bool = False) -> str:
     if setting != "auto":
         return setting
     return "differences" if floating or contact_rich(model) else "exact"
-
-
-def one_at_a_time(model) -> bool:
-    """Whether the model-based reference computes its Jacobians one column at
-    a time (module docstring): on a single CPU device, for a contact-rich
-    model. On a GPU, or sharded over devices, it batches them."""
-    return jax.default_backend() == "cpu" and jax.device_count() == 1 and contact_rich(model)
