@@ -23,7 +23,6 @@ import numpy as np
 
 from ..sim.rollout import (
     Policy,
-    bytes_per_rollout,
     injected_perturbations,
     on_device,
     perturbation_rollouts,
@@ -111,7 +110,7 @@ class DataBased:
     zero_u: Any
     needed: int  # the fit's regressors: fewer good rollouts cannot be fitted
     adapt: bool  # adapt sigma from the fit's residual (cfg.adapt_sigma, noiseless)
-    chunk: Optional[int]  # the sysid batch's chunk under the memory budget
+    chunk: Optional[int]  # the sysid batch's chunk under the memory budget (None: one batch)
     to_device: Any  # places a host array as the solver's arrays are placed
     unsaturate: Any = None
 
@@ -175,9 +174,10 @@ class Exact:
         return Identified(model, problem, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}, None)
 
 
-def data_based(env: Env, cfg: SolverConfig, q: int, data: EnvData, noisy: bool) -> DataBased:
+def data_based(env: Env, cfg: SolverConfig, q: int, data: EnvData, noisy: bool, chunk: Optional[int]) -> DataBased:
     """POD-iLQR's identification of ``env`` (its arrays ``data`` on the device)
-    as ``cfg`` sets it up; ``noisy``: the rollouts draw the task's noise."""
+    as ``cfg`` sets it up; ``noisy``: the rollouts draw the task's noise;
+    ``chunk``: the most rollouts of one call (``ExecutionPlan.sysid_chunk``)."""
     dims = env.dims
     nZ = info_dim(dims.nz, dims.nu, q)
     return DataBased(
@@ -196,7 +196,7 @@ def data_based(env: Env, cfg: SolverConfig, q: int, data: EnvData, noisy: bool) 
         zero_u=on_device(np.zeros((dims.horizon, dims.nu))),
         needed=n_regressors(dims.nz, dims.nu, q),
         adapt=cfg.adapt_sigma and not noisy,
-        chunk=cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy)),
+        chunk=chunk,
         to_device=on_device,
         unsaturate=_saturation_guard(data) if cfg.saturated_open_loop and env.limited else None,
     )

@@ -48,6 +48,7 @@ from .checkpoint import load_checkpoint, save_checkpoint
 from .config import SolverConfig, reidentify_scale
 from .interrupts import deferred_interrupts
 from .line_search import LineSearchResult, line_search
+from .plan import ExecutionPlan
 from .result import IterationInfo, Result
 from .state import Nominal, SolverState
 from .stopping import Stop
@@ -87,8 +88,7 @@ class Context:
     reg: Regularisation
     steps: np.ndarray  # the candidate step sizes
     alphas: Any  # ... on the device, with alpha = 0 last under noise
-    ls_rollouts: int
-    ls_chunk: Optional[int]
+    plan: ExecutionPlan  # how the solve runs: engine, batch sizes and chunks, compile ahead (``plan``)
     accept_ratio: Any
     zero_k: Any
     no_change: Any
@@ -148,7 +148,7 @@ def search(ctx: Context, policy: Policy, k, cost0, dV1, dV2, key) -> LineSearchR
     """The line search stage with this solve's candidates, batch and chunk."""
     return line_search(
         ctx.dims, ctx.q, ctx.data, policy, k, ctx.alphas, cost0, dV1, dV2, ctx.accept_ratio, key,
-        ctx.n_fwd, ctx.noisy, ctx.ls_chunk,
+        ctx.n_fwd, ctx.noisy, ctx.plan.ls_chunk,
     )  # fmt: skip
 
 
@@ -170,7 +170,7 @@ def compile_ahead(ctx: Context, st: SolverState, timing: Timing) -> int:
     called as ``init`` and ``step`` will call it, on zeros of the shapes they
     will see, inside a dry run. ``st`` is read, never changed. Returns the
     compilations it made (0 where the dry run is off)."""
-    n_workers = ahead.workers()
+    n_workers = ctx.plan.compile_ahead
     if n_workers == 0:
         return 0
     dims, to_device = ctx.dims, ctx.to_device
@@ -223,7 +223,7 @@ def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverS
     record.cost_history, record.true_cost_history, record.open_loop_cost_history = (
         [st.nominal.cost], [true_cost], [open_cost],
     )  # fmt: skip
-    record.rollouts = ctx.ls_rollouts
+    record.rollouts = ctx.plan.ls_rollouts
     timing.first_compiles = compiled_ahead + watch.compiles
     return st
 
@@ -295,8 +295,8 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
         ls, accepted = measure(
             ctx, st, timing, policy_of(nominal, st.gains), ctx.zero_k, nominal.cost, ctx.no_change, ctx.no_change
         )
-    iter_rollouts += ctx.ls_rollouts
-    record.rollouts += ctx.ls_rollouts
+    iter_rollouts += ctx.plan.ls_rollouts
+    record.rollouts += ctx.plan.ls_rollouts
     if accepted:
         stop = _accept(ctx, st, ls, back)
     else:
@@ -550,4 +550,5 @@ def terminate(ctx: Context, st: SolverState, stop: Stop, timing: Timing, watch: 
         mirrored=bool(st.mirrored and not st.open_loop) and pod,
         open_loop=bool(st.open_loop) or (pod and cfg.variant == "plain"),
         engine=dims.engine,
+        plan=ctx.plan.as_dict(),
     )

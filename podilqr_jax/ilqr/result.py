@@ -99,6 +99,7 @@ class Result:
     mirrored: bool = False  # the identification ran mirrored pairs at the end (cfg.mirrored or a recovery)
     open_loop: bool = False  # ... and open loop (variant plain, or a recovery switched to it)
     engine: str = "mjx"  # the engine that ran the rollouts (``SolverConfig.engine``): mjx or native
+    plan: dict[str, Any] = dataclasses.field(default_factory=dict)  # how it ran (``ilqr.plan.ExecutionPlan``)
 
     def __getattr__(self, name: str):
         """The record's counters and histories as attributes of the result."""
@@ -193,6 +194,7 @@ class Result:
             "mirrored": self.mirrored,
             "open_loop": self.open_loop,
             "engine": self.engine,
+            "plan": self.plan,
             "warnings": list(self.warnings),
             "control_limits": [[float(lo), float(hi)] for lo, hi in self.control_limits],
             "controls": self.controls.tolist(),

@@ -32,6 +32,7 @@ from .backward import QuadraticCost, Regularisation
 from .checkpoint import fingerprint
 from .config import SolverConfig
 from .driver import Callback, Context, RunOptions, run
+from .plan import ExecutionPlan, build_plan
 from .result import Result
 
 __all__ = ["Callback", "RunOptions", "default_config", "solve", "solve_model_based"]
@@ -90,8 +91,9 @@ def solve(
     dims, data = env.dims, on_device(_in_impl(env, cfg.impl))
     noisy = env.noisy and cfg.variant != "nominal"
     n_fwd = cfg.resolved_n_forward()
-    identify = data_based(env, cfg, q, data, noisy)
-    ctx = _context("pod-ilqr", env, dims, data, cfg, q, identify, noisy, n_fwd)
+    plan = _plan(dims, data, cfg, noisy, n_fwd, sysid_rollouts=cfg.n_s * cfg.resolved_n_avg())
+    identify = data_based(env, cfg, q, data, noisy, plan.sysid_chunk)
+    ctx = _context("pod-ilqr", env, dims, data, cfg, q, identify, noisy, n_fwd, plan)
     return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
 
 
@@ -128,15 +130,32 @@ def solve_model_based(
     jacobian = (
         "differences" if native and cfg.jacobian == "auto" else contacts.jacobian(cfg.jacobian, data.model, floating)
     )
-    identify = Exact(dims, data, nonfinite_hint(env.mj_model), jacobian)
-    ctx = _context("model-based", env, dims, data, cfg, 1, identify, False, 1)
+    plan = _plan(dims, data, cfg, False, 1, jacobian=jacobian)
+    identify = Exact(dims, data, nonfinite_hint(env.mj_model), plan.jacobian)
+    ctx = _context("model-based", env, dims, data, cfg, 1, identify, False, 1, plan)
     return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
 
 
-def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int) -> Context:
+def _plan(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int, sysid_rollouts: int = 0, jacobian: str = ""):
+    """How the solve runs (``plan``): its engine, batches and chunks under the
+    memory budget, and the machine's part; ``sysid_rollouts`` 0 and a
+    ``jacobian`` for the model-based reference."""
+    ls_rollouts = (cfg.n_alphas + (1 if noisy else 0)) * n_fwd  # under noise alpha = 0 too (``_context``)
+    return build_plan(
+        engine=dims.engine,
+        impl=cfg.impl,
+        sysid_rollouts=sysid_rollouts,
+        sysid_chunk=cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy)) if sysid_rollouts else None,
+        ls_rollouts=ls_rollouts,
+        ls_chunk=cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1),
+        jacobian=jacobian,
+    )
+
+
+def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int, plan: ExecutionPlan) -> Context:
     """Everything the driver keeps fixed; ``dims, data`` are the task as the
     solver sees it (its data committed to the device), ``env`` as the user gave
-    it."""
+    it; ``plan`` how it runs."""
     # Only a data-based fit has something to re-draw; under noise a rejected step never stops the solve.
     reidentify = cfg.reidentify if method == "pod-ilqr" and not noisy else 0
     box = (data.u_low, data.u_high) if env.limited else (None, None)
@@ -145,8 +164,6 @@ def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int)
     # Under noise alpha = 0 is the last candidate: when nothing is accepted it
     # is a fresh measurement of the current policy (see line_search).
     alphas = on_device(np.append(steps, 0.0) if noisy else steps)
-    ls_rollouts = int(alphas.shape[0]) * n_fwd
-    ls_chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1)
     return Context(
         method=method,
         env=env,
@@ -165,8 +182,7 @@ def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int)
         reg=Regularisation(on_device(cfg.mu_min), on_device(cfg.mu_max), on_device(cfg.mu_factor)),
         steps=steps,
         alphas=alphas,
-        ls_rollouts=ls_rollouts,
-        ls_chunk=None if ls_chunk >= ls_rollouts else ls_chunk,  # one compile for every budget that fits
+        plan=plan,
         accept_ratio=on_device(cfg.accept_ratio),
         zero_k=on_device(np.zeros((dims.horizon, dims.nu))),
         no_change=on_device(0.0),

@@ -1,0 +1,101 @@
+"""How a solve runs, decided once before its first iteration: the execution plan.
+
+The solver's settings say *what* is computed (the paper's iLQR and
+identification, the noise variant, the recovery); the plan says *how* this
+solve runs it on this machine:
+
+- ``engine``, ``impl``: the rollouts' engine (``sim.engines``: MJX or
+  MuJoCo's C engine, as ``engine = "auto"`` resolved it for the model) and
+  MJX's implementation;
+- ``backend``, ``devices``, ``processes``: where JAX runs (a batch is sharded
+  over several devices);
+- ``sysid_rollouts``, ``sysid_chunk``: the rollouts of one identification
+  (n_s x n_avg; the mirrored experiment runs twice that) and the most that
+  run in one call under the memory budget (``SolverConfig.resolved_chunk``),
+  a larger batch running in chunks of it (None: the batch fits, mirrored
+  too);
+- ``ls_rollouts``, ``ls_chunk``: the line search's batch and its chunk
+  (None: one batch);
+- ``jacobian``: the model-based reference's linearisation (``exact`` or
+  ``differences``; empty for POD-iLQR);
+- ``compile_ahead``: the threads of the dry run that compiles the first
+  iteration's stages side by side (``sim.ahead``; 0: off);
+- ``xla_options``, ``cache``, ``x64``: what the package compiles with
+  (``sim.xla_options``), the persistent compilation cache's state
+  (``sim.cache``: on, read, off, or the user's own JAX cache) and the float
+  width.
+
+``solver`` builds it from the model, the settings and the machine (and the
+environment switches of docs/environment.md, read there once); the
+identification, the line search and the compile ahead take their sizes from
+it, and the result records it (``Result.plan``, and ``plan`` in its JSON),
+so a result says how it was computed as well as what.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Optional
+
+import jax
+
+
+@dataclasses.dataclass(frozen=True)
+class ExecutionPlan:
+    """How one solve runs (module docstring)."""
+
+    engine: str
+    impl: str
+    backend: str
+    devices: int
+    processes: int
+    sysid_rollouts: int
+    sysid_chunk: Optional[int]
+    ls_rollouts: int
+    ls_chunk: Optional[int]
+    jacobian: str
+    compile_ahead: int
+    xla_options: tuple[tuple[str, Any], ...]
+    cache: str
+    x64: bool
+
+    def as_dict(self) -> dict[str, Any]:
+        """The plan as JSON values (``Result.plan``)."""
+        return dataclasses.asdict(self) | {"xla_options": dict(self.xla_options)}
+
+
+def build_plan(
+    *,
+    engine: str,
+    impl: str,
+    sysid_rollouts: int,
+    sysid_chunk: Optional[int],
+    ls_rollouts: int,
+    ls_chunk: int,
+    jacobian: str = "",
+) -> ExecutionPlan:
+    """The plan of a solve whose sizes the solver has worked out; the machine's
+    part (devices, the compile ahead, XLA's options, the cache, x64) read here."""
+    from ..sim import ahead, cache, xla_options
+
+    info = cache.cache_info()
+    cache_state = "off" if not info.enabled else ("read" if info.read_only else "on")
+    if info.source == "jax":
+        cache_state = "jax"
+    return ExecutionPlan(
+        engine=engine,
+        impl=impl if engine == "mjx" else "",
+        backend=jax.default_backend(),
+        devices=jax.device_count(),
+        processes=jax.process_count(),
+        sysid_rollouts=sysid_rollouts,
+        # None where the batch always fits, mirrored (twice the rollouts) too: one compile for every such budget
+        sysid_chunk=None if sysid_chunk is None or sysid_chunk >= 2 * sysid_rollouts else sysid_chunk,
+        ls_rollouts=ls_rollouts,
+        ls_chunk=None if ls_chunk >= ls_rollouts else ls_chunk,  # one compile for every budget that fits
+        jacobian=jacobian,
+        compile_ahead=ahead.workers(),
+        xla_options=tuple(sorted(xla_options.options().items())),
+        cache=cache_state,
+        x64=bool(jax.config.jax_enable_x64),
+    )
