@@ -1,4 +1,4 @@
-"""What the package's XLA options (``podilqr_jax.sim.xla_options``) change: cold compile and run time.
+"""What the package's XLA options (``podilqr_jax.compilation.xla_options``) change: cold compile and run time.
 
 For each task, in fresh processes with the persistent compilation cache off
 (``PODILQR_CACHE=0``), once with the package's options and once with XLA's
@@ -22,7 +22,7 @@ import sys
 CHILD = """
 import json, sys, time
 import podilqr_jax as pj
-from podilqr_jax.sim import xla_options
+from podilqr_jax.compilation import xla_options
 task, n_s, iterations, which = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 env = pj.make_task(task)
 solve = pj.solve if which == "pod" else pj.solve_model_based

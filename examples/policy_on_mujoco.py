@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 
 import podilqr_jax as pj
-from podilqr_jax.sim.compile_watch import CompileWatch
+from podilqr_jax.compilation.compile_watch import CompileWatch
 
 
 def episode(env, policy, rng, actuator_std, measurement_std, feedback=True):

@@ -10,7 +10,7 @@ imports nothing heavy, so that ``podilqr --help`` answers at once):
   package's ``__init__`` asks for it through ``JAX_ENABLE_X64`` already, so
   that JAX imported by the user after ``import podilqr_jax`` starts in
   float64; here it is set in JAX's config and the variable put back as it was.
-- JAX's persistent compilation cache (``sim/cache.py``);
+- JAX's persistent compilation cache (``compilation/cache.py``);
 - MJX imported with its note about the optional ``warp`` backend kept off
   stdout (the CLI's output).
 """
@@ -30,7 +30,7 @@ if _X64_VARIABLE_BEFORE is None:
 else:
     os.environ["JAX_ENABLE_X64"] = _X64_VARIABLE_BEFORE
 
-from .sim import cache as _cache  # noqa: E402,F401  (configures the cache on import)
+from .compilation import cache as _cache  # noqa: E402,F401  (configures the cache on import)
 
 with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx as _mjx  # noqa: E402,F401

@@ -7,7 +7,7 @@ aborts inside the compiler. Dropping JAX's caches after each test module keeps
 the count to what one module needs (measured: ~10,000 after
 tests/test_properties.py alone).
 
-The suite has its own persistent compilation cache (``podilqr_jax.sim.cache``): a
+The suite has its own persistent compilation cache (``podilqr_jax.compilation.cache``): a
 fresh folder per pytest run (shared by its pytest-xdist workers), set before any
 test module imports the package and removed at the end, so a module that compiles what an earlier one already
 compiled loads it from disk, and the user's ~/.cache is left alone. Every run

@@ -1,4 +1,4 @@
-"""The persistent compilation cache (podilqr_jax.sim.cache): written where documented,
+"""The persistent compilation cache (podilqr_jax.compilation.cache): written where documented,
 nothing in the working directory, switched off by PODILQR_CACHE=0, a user's own
 JAX cache left alone, and a warm run gives the same result as a cold one.
 
@@ -24,8 +24,8 @@ print(json.dumps({"info": info._asdict(), "dir": jax.config.jax_compilation_cach
 SOLVE = """
 import json
 import podilqr_jax as pj
-from podilqr_jax.sim import stages
-from podilqr_jax.sim.compile_watch import CompileWatch
+from podilqr_jax.compilation import stages
+from podilqr_jax.compilation.compile_watch import CompileWatch
 env = pj.make_task("pendulum-full", horizon=8)
 with CompileWatch() as watch:
     r = pj.solve(env, pj.default_config(env, max_iterations=2, n_s=8))
@@ -97,7 +97,7 @@ def test_warm_run_loads_from_disk_and_gives_the_same_result(tmp_path):
     assert cold["compiles"] > 5 and cold["loads"] < cold["compiles"] // 2
     assert warm["loads"] == warm["compiles"] == cold["compiles"]
     assert warm["costs"] == cold["costs"] and warm["K"] == cold["K"]  # bit for bit
-    # The traced stages too (podilqr_jax/sim/stages.py): the cold run exports the
+    # The traced stages too (podilqr_jax/compilation/stages.py): the cold run exports the
     # sysid batch, the fit, the backward pass and the line search; the warm run
     # reads all of them and traces none.
     assert cold["fallbacks"] == {} and cold["stages"] == {"exported": 4, "loaded": 0}
@@ -170,7 +170,7 @@ def test_a_stage_key_hashes_the_source_of_every_subpackage():
     the line search or the fit (outside sim/, where the stages module lives)
     must start afresh, or a warm run would execute the program of old code."""
     import podilqr_jax
-    from podilqr_jax.sim import stages
+    from podilqr_jax.compilation import stages
 
     files = stages.source_files()
     assert os.path.samefile(stages.PACKAGE_ROOT, os.path.dirname(podilqr_jax.__file__))

@@ -1,4 +1,4 @@
-"""The compile ahead (sim/ahead.py): the first iteration's stages compile in
+"""The compile ahead (compilation/ahead.py): the first iteration's stages compile in
 the dry run's threads, never again in the solve, and the solve's numbers are
 those of a solve without it."""
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.sim import ahead
+from podilqr_jax.compilation import ahead
 
 # The stages' programs as JAX's compile log names them: the jitted stage, or
 # ``call`` for a stage run from its exported program (the package's cache on).

@@ -94,3 +94,14 @@ def test_the_checker_sees_a_circle():
 
 def test_no_module_of_the_package_imports_itself_back():
     assert _circles(_graph()) == []
+
+
+def test_the_compile_machinery_imports_nothing_of_the_solver():
+    """podilqr_jax/compilation/ (how programs compile) sits below the algorithm's
+    subpackages: it may import the package's top-level helpers, never them."""
+    graph = _graph()
+    below = {m for m in graph if m.startswith("podilqr_jax.compilation")}
+    assert len(below) >= 5
+    for module in below:
+        upward = {d for d in graph[module] if not d.startswith("podilqr_jax.compilation")}
+        assert upward <= {"podilqr_jax.environment", "podilqr_jax.atomic"}, (module, upward)

@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
+from podilqr_jax.compilation import stages
 from podilqr_jax.errors import ConfigError
-from podilqr_jax.sim import engines, stages
+from podilqr_jax.sim import engines
 from podilqr_jax.sim.native import NativeModel, native_model
 from podilqr_jax.sim.rollout import Policy, observations_of, open_loop_policy, rollout_batch
 from podilqr_jax.task.noise import sample

@@ -6,8 +6,8 @@ from __future__ import annotations
 import jax
 
 import podilqr_jax as pj
+from podilqr_jax.compilation import ahead
 from podilqr_jax.ilqr import solver
-from podilqr_jax.sim import ahead
 from podilqr_jax.sim.rollout import on_device
 
 

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
+from podilqr_jax.compilation.compile_watch import CompileWatch
 from podilqr_jax.control.kalman import kalman_gains
 from podilqr_jax.control.policy import run_on_measurements
-from podilqr_jax.sim.compile_watch import CompileWatch
 from podilqr_jax.sim.rollout import Policy, rollout_batch
 from podilqr_jax.task.noise import noise_levels, sample
 

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import podilqr_jax as pj
+from podilqr_jax.compilation import xla_options
 from podilqr_jax.identify.info_state import info_dim
-from podilqr_jax.sim import xla_options
 from podilqr_jax.sim.rollout import open_loop_policy, rollout_batch
 
 
@@ -47,7 +47,7 @@ def test_the_options_change_the_compile_not_the_solve(tmp_path):
     same iterations and costs to round-off."""
     child = (
         "import json, podilqr_jax as pj\n"
-        "from podilqr_jax.sim import xla_options\n"
+        "from podilqr_jax.compilation import xla_options\n"
         "env = pj.make_task('cartpole-partial', horizon=12)\n"
         "r = pj.solve(env, pj.default_config(env, max_iterations=4))\n"
         "print(json.dumps({'options': xla_options.options(), 'costs': r.cost_history, 'K': r.K.ravel().tolist()}))\n"

@@ -28,9 +28,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compilation.xla_options import jit
 from ..ilqr.cost import batch_costs
 from ..sim.rollout import run_batch
-from ..sim.xla_options import jit
 from ..task.env import Env, EnvData, EnvDims
 from ..task.noise import Disturbance, NoiseLevels, NoiseModel, sample
 from .policy import FeedbackPolicy

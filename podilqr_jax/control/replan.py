@@ -38,10 +38,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compilation.compile_watch import CompileWatch
 from ..errors import ConfigError
 from ..ilqr.config import SolverConfig
 from ..ilqr.solver import solve
-from ..sim.compile_watch import CompileWatch
 from ..task import tangent
 from ..task.env import Env
 from ..task.noise import Disturbance, sample

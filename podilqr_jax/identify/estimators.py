@@ -52,7 +52,7 @@ import math
 
 import jax.numpy as jnp
 
-from ..sim.stages import stage
+from ..compilation.stages import stage
 from .sysid import FitReport, LinearModel, fit_each_step, least_squares, regression_data
 
 ESTIMATORS = ("ols", "iv")

@@ -31,8 +31,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 
+from ..compilation.stages import stage
 from ..sim.rollout import physics_step, start_data, state_of, with_state
-from ..sim.stages import stage
 from ..task import tangent
 from ..task.env import EnvData, EnvDims
 from .sysid import LinearModel

@@ -40,7 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..sim.stages import stage
+from ..compilation.stages import stage
 from .info_state import companion, info_states, n_regressors
 
 

@@ -35,8 +35,8 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
 
+from ..compilation.stages import stage
 from ..identify.sysid import LinearModel
-from ..sim.stages import stage
 from .cost import running_weights
 
 

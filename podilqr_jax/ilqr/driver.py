@@ -16,8 +16,8 @@ and :func:`run` loops ``step`` with the progress callback, checkpoints and
 Ctrl-C (``interrupts``). The driver only moves scalars to the host (cost,
 acceptance, step size, mu), so each iteration can be reported live; every
 array stays on the device. All jitted stages compile before or in the first
-iteration and never again (``compile_watch``): before it, side by side in
-threads, where :func:`compile_ahead` can (``sim.ahead``).
+iteration and never again (``compilation.compile_watch``): before it, side by side in
+threads, where :func:`compile_ahead` can (``compilation.ahead``).
 
 Regularisation schedule: after an accepted step mu <- max(mu / f, mu_min);
 after the n-th consecutive rejected step mu <- max(mu f^n, mu_min) and the
@@ -37,9 +37,9 @@ from typing import Any, Callable, NamedTuple, Optional
 import jax
 import numpy as np
 
+from ..compilation import ahead
+from ..compilation.compile_watch import CompileWatch
 from ..identify.identification import Experiment
-from ..sim import ahead
-from ..sim.compile_watch import CompileWatch
 from ..sim.rollout import Policy, observations_of, replicated
 from ..task.env import Env, EnvData, EnvDims
 from . import stopping
@@ -165,7 +165,7 @@ def ground_truth(ctx: Context, st: SolverState, timing: Timing) -> tuple[float, 
 
 def compile_ahead(ctx: Context, st: SolverState, timing: Timing) -> int:
     """Compile the stages of the first iteration side by side, before it runs
-    (``sim.ahead``): the identification, the backward pass, the line search
+    (``compilation.ahead``): the identification, the backward pass, the line search
     (as the first measurement calls it) and, under noise, the true cost, each
     called as ``init`` and ``step`` will call it, on zeros of the shapes they
     will see, inside a dry run. ``st`` is read, never changed. Returns the

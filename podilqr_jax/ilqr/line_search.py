@@ -35,9 +35,9 @@ from typing import NamedTuple, Optional
 import jax
 import jax.numpy as jnp
 
+from ..compilation.stages import stage
 from ..identify.info_state import info_states
 from ..sim.rollout import Policy, Trajectory, average_repeats, shard_batch, simulate
-from ..sim.stages import stage
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
 from .cost import batch_costs

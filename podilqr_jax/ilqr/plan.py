@@ -19,10 +19,10 @@ solve runs it on this machine:
 - ``jacobian``: the model-based reference's linearisation (``exact`` or
   ``differences``; empty for POD-iLQR);
 - ``compile_ahead``: the threads of the dry run that compiles the first
-  iteration's stages side by side (``sim.ahead``; 0: off);
+  iteration's stages side by side (``compilation.ahead``; 0: off);
 - ``xla_options``, ``cache``, ``x64``: what the package compiles with
-  (``sim.xla_options``), the persistent compilation cache's state
-  (``sim.cache``: on, read, off, or the user's own JAX cache) and the float
+  (``compilation.xla_options``), the persistent compilation cache's state
+  (``compilation.cache``: on, read, off, or the user's own JAX cache) and the float
   width.
 
 ``solver`` builds it from the model, the settings and the machine (and the
@@ -76,7 +76,7 @@ def build_plan(
 ) -> ExecutionPlan:
     """The plan of a solve whose sizes the solver has worked out; the machine's
     part (devices, the compile ahead, XLA's options, the cache, x64) read here."""
-    from ..sim import ahead, cache, xla_options
+    from ..compilation import ahead, cache, xla_options
 
     info = cache.cache_info()
     cache_state = "off" if not info.enabled else ("read" if info.read_only else "on")

@@ -82,7 +82,7 @@ class Result:
     q: int
     record: Record  # the counters and histories (iterations, rollouts, cost_history, ...)
     wall_s: float
-    compile_s: float  # tracing, lowering and compiling (the compile ahead, sim/ahead.py, at its wall time)
+    compile_s: float  # tracing, lowering and compiling (the compile ahead, compilation/ahead.py, at its wall time)
     run_s: float
     compiles_per_iteration: list[int]
     phase_s: dict[str, float]  # seconds per phase (driver.PHASES); "compile" is the compile ahead

@@ -24,8 +24,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from ..compilation.stages import stage
 from ..sim.rollout import Policy, simulate
-from ..sim.stages import stage
 from ..task.env import EnvData, EnvDims
 from .cost import batch_costs
 

@@ -56,12 +56,13 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
+from ..compilation import xla_options
+from ..compilation.stages import stage
 from ..identify.info_state import initial_info_state, shift
 from ..task import tangent
 from ..task.env import EnvData, EnvDims
 from ..task.noise import Disturbance, sample
-from . import native, rk4, xla_options
-from .stages import stage
+from . import native, rk4
 
 
 class Policy(NamedTuple):

@@ -63,7 +63,7 @@ def folder() -> Optional[str]:
     return os.path.join(info["directory"], FOLDER_NAME)
 
 
-PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # podilqr_jax/, above sim/
+PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # podilqr_jax/, above compilation/
 
 
 def source_files() -> list[str]:
