@@ -39,6 +39,8 @@ from typing import Any, Optional
 
 import jax
 
+from ..compilation import ahead, cache, xla_options
+
 
 @dataclasses.dataclass(frozen=True)
 class ExecutionPlan:
@@ -76,8 +78,6 @@ def build_plan(
 ) -> ExecutionPlan:
     """The plan of a solve whose sizes the solver has worked out; the machine's
     part (devices, the compile ahead, XLA's options, the cache, x64) read here."""
-    from ..compilation import ahead, cache, xla_options
-
     info = cache.cache_info()
     cache_state = "off" if not info.enabled else ("read" if info.read_only else "on")
     if info.source == "jax":

@@ -140,7 +140,7 @@ def _plan(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int, sysid_rollouts
     """How the solve runs (``plan``): its engine, batches and chunks under the
     memory budget, and the machine's part; ``sysid_rollouts`` 0 and a
     ``jacobian`` for the model-based reference."""
-    ls_rollouts = (cfg.n_alphas + (1 if noisy else 0)) * n_fwd  # under noise alpha = 0 too (``_context``)
+    ls_rollouts = len(_step_candidates(cfg, noisy)) * n_fwd
     return build_plan(
         engine=dims.engine,
         impl=cfg.impl,
@@ -152,6 +152,14 @@ def _plan(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int, sysid_rollouts
     )
 
 
+def _step_candidates(cfg: SolverConfig, noisy: bool) -> np.ndarray:
+    """The line search's step sizes 1, 1/2, ..., 2^-(n_alphas - 1); under noise
+    alpha = 0 last: when nothing is accepted it is a fresh measurement of the
+    current policy (see line_search)."""
+    steps = 0.5 ** np.arange(cfg.n_alphas)
+    return np.append(steps, 0.0) if noisy else steps
+
+
 def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int, plan: ExecutionPlan) -> Context:
     """Everything the driver keeps fixed; ``dims, data`` are the task as the
     solver sees it (its data committed to the device), ``env`` as the user gave
@@ -160,10 +168,8 @@ def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int,
     reidentify = cfg.reidentify if method == "pod-ilqr" and not noisy else 0
     box = (data.u_low, data.u_high) if env.limited else (None, None)
     selector = observation_selector(dims.nz, dims.nu, q)
-    steps = 0.5 ** np.arange(cfg.n_alphas)
-    # Under noise alpha = 0 is the last candidate: when nothing is accepted it
-    # is a fresh measurement of the current policy (see line_search).
-    alphas = on_device(np.append(steps, 0.0) if noisy else steps)
+    steps = _step_candidates(cfg, noisy=False)
+    alphas = on_device(_step_candidates(cfg, noisy))
     return Context(
         method=method,
         env=env,
