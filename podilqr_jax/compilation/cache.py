@@ -73,6 +73,16 @@ def read_only() -> bool:
     return bool(_state["read_only"])
 
 
+def mode() -> str:
+    """The cache this process's solves get, without looking into its folder:
+    ``on``, ``read`` (read, never written), ``jax`` (a cache the user
+    configured for JAX) or ``off`` (switched off, or a folder it could not use)."""
+    source = _state["source"]
+    if source == "podilqr":
+        return "read" if _state["read_only"] else "on"
+    return "jax" if source == "jax" else "off"
+
+
 def setting() -> str:
     """``PODILQR_CACHE``: ``on`` (the default), ``off``, or ``read`` (read, never written)."""
     return str(environment.choice(ENV_SWITCH, "on", {"read": "read", "read-only": "read", "ro": "read"}))

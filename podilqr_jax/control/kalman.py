@@ -52,8 +52,9 @@ from ..identify.identification import Experiment, data_based
 from ..identify.info_state import info_dim
 from ..identify.sysid import LinearModel
 from ..ilqr.config import SolverConfig
+from ..ilqr.plan import sysid_chunk
 from ..ilqr.state import Nominal
-from ..sim.rollout import bytes_per_rollout, on_device, open_loop_policy, rollout_batch
+from ..sim.rollout import on_device, open_loop_policy, rollout_batch
 from ..task import tangent
 from ..task.env import Env
 from .policy import FeedbackPolicy
@@ -124,7 +125,7 @@ def identify_about_nominal(
         n_s=n_s, n_avg=1, variant="plain", estimator="ols", cap_rank=False, adapt_sigma=False, sigma_scale="absolute"
     )
     data = on_device(env.data)
-    identify = data_based(env, settings, q, data, False, settings.resolved_chunk(bytes_per_rollout(dims, data, False)))
+    identify = data_based(env, settings, q, data, False, sysid_chunk(settings, dims, data, False, n_s))
     zero = jnp.zeros_like(ctrl.u_bar)
     base = rollout_batch(dims, q, env.data, open_loop_policy(ctrl.u_bar, policy.info_dim), zero, zero)
     nominal = Nominal(ctrl.u_bar, base.z, None, jnp.zeros((dims.horizon + 1, policy.info_dim)), float("nan"))

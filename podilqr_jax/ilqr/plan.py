@@ -40,6 +40,9 @@ from typing import Any, Optional
 import jax
 
 from ..compilation import ahead, cache, xla_options
+from ..sim.rollout import bytes_per_rollout
+from ..task.env import EnvData, EnvDims
+from .config import SolverConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,6 +69,21 @@ class ExecutionPlan:
         return dataclasses.asdict(self) | {"xla_options": dict(self.xla_options)}
 
 
+def sysid_chunk(cfg: SolverConfig, dims: EnvDims, data: EnvData, noisy: bool, rollouts: int) -> Optional[int]:
+    """The most sysid rollouts of one call under ``cfg``'s memory budget, or
+    None where a batch of ``rollouts`` fits, mirrored (twice that) too: one
+    program for every budget that fits."""
+    chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy))
+    return None if chunk >= 2 * rollouts else chunk
+
+
+def line_search_chunk(cfg: SolverConfig, dims: EnvDims, data: EnvData, noisy: bool, rollouts: int) -> Optional[int]:
+    """The most line-search rollouts (with their states) of one call under
+    ``cfg``'s memory budget, or None where the ``rollouts`` fit."""
+    chunk = cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1)
+    return None if chunk >= rollouts else chunk
+
+
 def build_plan(
     *,
     engine: str,
@@ -73,15 +91,11 @@ def build_plan(
     sysid_rollouts: int,
     sysid_chunk: Optional[int],
     ls_rollouts: int,
-    ls_chunk: int,
+    ls_chunk: Optional[int],
     jacobian: str = "",
 ) -> ExecutionPlan:
     """The plan of a solve whose sizes the solver has worked out; the machine's
     part (devices, the compile ahead, XLA's options, the cache, x64) read here."""
-    info = cache.cache_info()
-    cache_state = "off" if not info.enabled else ("read" if info.read_only else "on")
-    if info.source == "jax":
-        cache_state = "jax"
     return ExecutionPlan(
         engine=engine,
         impl=impl if engine == "mjx" else "",
@@ -89,13 +103,12 @@ def build_plan(
         devices=jax.device_count(),
         processes=jax.process_count(),
         sysid_rollouts=sysid_rollouts,
-        # None where the batch always fits, mirrored (twice the rollouts) too: one compile for every such budget
-        sysid_chunk=None if sysid_chunk is None or sysid_chunk >= 2 * sysid_rollouts else sysid_chunk,
+        sysid_chunk=sysid_chunk,
         ls_rollouts=ls_rollouts,
-        ls_chunk=None if ls_chunk >= ls_rollouts else ls_chunk,  # one compile for every budget that fits
+        ls_chunk=ls_chunk,
         jacobian=jacobian,
         compile_ahead=ahead.workers(),
         xla_options=tuple(sorted(xla_options.options().items())),
-        cache=cache_state,
+        cache=cache.mode(),
         x64=bool(jax.config.jax_enable_x64),
     )

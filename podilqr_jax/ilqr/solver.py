@@ -26,13 +26,13 @@ from ..identify.identification import Exact, actuator_units, data_based
 from ..identify.info_state import info_dim, observation_selector
 from ..identify.model_based import nonfinite_hint
 from ..sim import contacts, engines
-from ..sim.rollout import bytes_per_rollout, on_device
+from ..sim.rollout import on_device
 from ..task.env import Env, mjx_model_of
 from .backward import QuadraticCost, Regularisation
 from .checkpoint import fingerprint
 from .config import SolverConfig
 from .driver import Callback, Context, RunOptions, run
-from .plan import ExecutionPlan, build_plan
+from .plan import ExecutionPlan, build_plan, line_search_chunk, sysid_chunk
 from .result import Result
 
 __all__ = ["Callback", "RunOptions", "default_config", "solve", "solve_model_based"]
@@ -145,9 +145,9 @@ def _plan(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int, sysid_rollouts
         engine=dims.engine,
         impl=cfg.impl,
         sysid_rollouts=sysid_rollouts,
-        sysid_chunk=cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy)) if sysid_rollouts else None,
+        sysid_chunk=sysid_chunk(cfg, dims, data, noisy, sysid_rollouts) if sysid_rollouts else None,
         ls_rollouts=ls_rollouts,
-        ls_chunk=cfg.resolved_chunk(bytes_per_rollout(dims, data, noisy, record_state=True), group=1),
+        ls_chunk=line_search_chunk(cfg, dims, data, noisy, ls_rollouts),
         jacobian=jacobian,
     )
 
