@@ -25,7 +25,7 @@ from podilqr_jax.identify.info_state import observation_selector
 from podilqr_jax.identify.sysid import excited_rank, fit_information_model
 from podilqr_jax.ilqr.backward import QuadraticCost, Regularisation, backward_pass
 from podilqr_jax.ilqr.checkpoint import fingerprint, load_checkpoint
-from podilqr_jax.ilqr.line_search import line_search
+from podilqr_jax.ilqr.line_search import Candidates, Search, Step, line_search
 from podilqr_jax.sim.rollout import Policy, perturbation_rollouts
 from podilqr_jax.task.taskfile import load_task
 
@@ -35,7 +35,10 @@ TASK = os.path.join(HERE, os.pardir, "examples", "tasks", "third_party", "dmc_ca
 
 def main() -> None:
     env = load_task(TASK)
-    cfg = pj.default_config(env, saturated_open_loop=False, escalate=False, reidentify=0, adapt_sigma=False)
+    # MJX: the rollouts below are MJX batches of the same model (auto would take the native engine for RK4)
+    cfg = pj.default_config(
+        env, engine="mjx", saturated_open_loop=False, escalate=False, reidentify=0, adapt_sigma=False
+    )
     with tempfile.TemporaryDirectory() as ck:
         stuck = pj.solve(env, cfg, checkpoint=ck, checkpoint_every=1000)
         print(f"with feedback on saturated controls: {stuck.status} at cost {stuck.final_cost:.4f}")
@@ -71,20 +74,12 @@ def main() -> None:
         print(f"{label}: moved " + "".join(str(min(9, int(10 * m))) for m in moved) + "   (tenths of the rollouts)")
         back = backward_pass(model, nom.Z_bar, nom.u_bar, cost, jnp.asarray(cfg.mu_min), reg)
         ls = line_search(
-            dims,
-            q,
+            Search(dims, q),
             data,
             Policy(nom.u_bar, nom.Z_bar[:-1], back.K),
-            back.k,
-            alphas,
-            jnp.asarray(nom.cost),
-            back.dV1,
-            back.dV2,
-            jnp.asarray(cfg.accept_ratio),
+            Step(back.k, jnp.asarray(nom.cost), back.dV1, back.dV2),
+            Candidates(alphas, jnp.asarray(cfg.accept_ratio)),
             st.ls_key,
-            1,
-            False,
-            None,
         )
         i = cfg.n_alphas - 1
         change = float(np.asarray(ls.costs)[i]) - nom.cost

@@ -12,7 +12,7 @@ import pytest
 import podilqr_jax as pj
 from podilqr_jax.identify.sysid import fit_information_model
 from podilqr_jax.ilqr.backward import box_qp
-from podilqr_jax.ilqr.line_search import line_search
+from podilqr_jax.ilqr.line_search import Candidates, Search, Step, line_search
 from podilqr_jax.sim.rollout import Policy, observations_of
 
 PENDULUM = """
@@ -217,7 +217,8 @@ def test_line_search_rejects_divergent_candidates():
     policy = Policy(jnp.zeros((T, nu)), jnp.zeros((T, nZ)), jnp.zeros((T, nu, nZ)))
     alphas = jnp.asarray(np.append(0.5 ** np.arange(4), 0.0))
     k = jnp.full((T, nu), 1e200)
-    ls = line_search(dims, 1, data, policy, k, alphas, jnp.asarray(np.inf), -1.0, 0.0, 1e-4, jax.random.PRNGKey(0))
+    step, candidates = Step(k, jnp.asarray(np.inf), -1.0, 0.0), Candidates(alphas, 1e-4)
+    ls = line_search(Search(dims, 1), data, policy, step, candidates, jax.random.PRNGKey(0))
     costs = np.asarray(ls.costs)
     assert not np.isfinite(costs[:4]).any() and np.isfinite(costs[4])
     assert not bool(ls.accepted)

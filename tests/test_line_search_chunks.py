@@ -11,7 +11,7 @@ import pytest
 
 import podilqr_jax as pj
 from podilqr_jax.identify.info_state import info_dim
-from podilqr_jax.ilqr.line_search import line_search
+from podilqr_jax.ilqr.line_search import Candidates, Search, Step, line_search
 from podilqr_jax.sim.rollout import Policy, bytes_per_rollout
 
 HORIZON = 6
@@ -30,10 +30,8 @@ def _search(env, chunk, noisy, n_fwd=N_FWD):
     )
     k = jnp.asarray(rng.normal(size=(HORIZON, dims.nu)))
     alphas = jnp.asarray(np.append(0.5 ** np.arange(3), 0.0))
-    return line_search(
-        dims, q, data, policy, k, alphas, jnp.asarray(np.inf), -1.0, 0.0, 1e-4, jax.random.PRNGKey(3),
-        n_fwd, noisy, chunk,
-    )  # fmt: skip
+    step, candidates = Step(k, jnp.asarray(np.inf), -1.0, 0.0), Candidates(alphas, 1e-4)
+    return line_search(Search(dims, q, n_fwd, noisy, chunk), data, policy, step, candidates, jax.random.PRNGKey(3))
 
 
 @pytest.mark.parametrize("noisy", [True, False])

@@ -111,7 +111,6 @@ class DataBased:
     needed: int  # the fit's regressors: fewer good rollouts cannot be fitted
     adapt: bool  # adapt sigma from the fit's residual (cfg.adapt_sigma, noiseless)
     chunk: Optional[int]  # the sysid batch's chunk under the memory budget (None: one batch)
-    to_device: Any  # places a host array as the solver's arrays are placed
     unsaturate: Any = None
 
     @property
@@ -127,7 +126,7 @@ class DataBased:
         if closed and self.unsaturate is not None:
             gains = self.unsaturate(gains, nominal.u_bar)
         policy = Policy(nominal.u_bar, nominal.Z_bar[:-1], gains if closed else self.no_gains)
-        sigma_t = self.to_device(sigma * self.units)
+        sigma_t = on_device(sigma * self.units)
         traj = perturbation_rollouts(
             dims, self.q, cfg.n_s, self.data, policy, key, sigma_t,
             n_avg=self.n_avg, noisy=self.noisy, chunk=self.chunk, mirrored=mirrored,
@@ -197,7 +196,6 @@ def data_based(env: Env, cfg: SolverConfig, q: int, data: EnvData, noisy: bool, 
         needed=n_regressors(dims.nz, dims.nu, q),
         adapt=cfg.adapt_sigma and not noisy,
         chunk=chunk,
-        to_device=on_device,
         unsaturate=_saturation_guard(data) if cfg.saturated_open_loop and env.limited else None,
     )
 

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Callable, NamedTuple, Optional
+from typing import Callable, NamedTuple, Optional
 
 import jax
 import numpy as np
@@ -40,14 +40,14 @@ import numpy as np
 from ..compilation import ahead
 from ..compilation.compile_watch import CompileWatch
 from ..identify.identification import Experiment
-from ..sim.rollout import Policy, observations_of, replicated
+from ..sim.rollout import Policy, observations_of, on_device, replicated
 from ..task.env import Env, EnvData, EnvDims
 from . import stopping
 from .backward import QuadraticCost, Regularisation, backward_pass
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import SolverConfig, reidentify_scale
 from .interrupts import deferred_interrupts
-from .line_search import LineSearchResult, line_search
+from .line_search import Candidates, Search, Step, line_search
 from .plan import ExecutionPlan
 from .result import IterationInfo, Result
 from .state import Nominal, SolverState
@@ -79,7 +79,6 @@ class Context:
     q: int
     identify: Callable  # the identification strategy (``identification``)
     noisy: bool
-    n_fwd: int  # rollouts per line-search candidate
     nZ: int
     reidentify: int  # re-identifications at other sigmas before line_search_failed (0: none)
     escalate: bool  # then other experiments
@@ -87,13 +86,11 @@ class Context:
     cost_model: QuadraticCost
     reg: Regularisation
     steps: np.ndarray  # the candidate step sizes
-    alphas: Any  # ... on the device, with alpha = 0 last under noise
     plan: ExecutionPlan  # how the solve runs: engine, batch sizes and chunks, compile ahead (``plan``)
-    accept_ratio: Any
-    zero_k: Any
-    no_change: Any
+    search: Search  # how its line searches run (static)
+    candidates: Candidates  # ... the step sizes on the device, with alpha = 0 last under noise
+    hold: Step  # the step that changes nothing (k = 0): a measurement of the policy as it is
     fingerprint: dict
-    to_device: Callable
     units: list  # sigma's unit per actuator (reported in the result)
 
     @property
@@ -133,23 +130,17 @@ def policy_of(nominal: Nominal, K) -> Policy:
     return Policy(nominal.u_bar, nominal.Z_bar[:-1], K)
 
 
-def measure(ctx: Context, st: SolverState, timing: Timing, policy: Policy, k, cost0, dV1, dV2):
-    """The batched line search of ``policy`` with feed-forward ``k``; returns (its result, accepted)."""
+def measure(ctx: Context, st: SolverState, timing: Timing, policy: Policy, step: Optional[Step], cost0: float):
+    """The batched line search of ``policy`` with ``step`` (None: ``ctx.hold``, a
+    measurement) about a nominal of cost ``cost0``; returns (its result, accepted)."""
     t0 = time.perf_counter()
     st.ls_key, sub = jax.random.split(st.ls_key)
-    ls = search(ctx, policy, k, ctx.to_device(cost0), dV1, dV2, sub)
+    step = (ctx.hold if step is None else step)._replace(cost0=on_device(cost0))
+    ls = line_search(ctx.search, ctx.data, policy, step, ctx.candidates, sub)
     accepted = bool(ls.accepted)
     st.record.diverged_candidates += int(ls.n_diverged)
     timing.add("line_search", t0)
     return ls, accepted
-
-
-def search(ctx: Context, policy: Policy, k, cost0, dV1, dV2, key) -> LineSearchResult:
-    """The line search stage with this solve's candidates, batch and chunk."""
-    return line_search(
-        ctx.dims, ctx.q, ctx.data, policy, k, ctx.alphas, cost0, dV1, dV2, ctx.accept_ratio, key,
-        ctx.n_fwd, ctx.noisy, ctx.plan.ls_chunk,
-    )  # fmt: skip
 
 
 def ground_truth(ctx: Context, st: SolverState, timing: Timing) -> tuple[float, float]:
@@ -173,19 +164,19 @@ def compile_ahead(ctx: Context, st: SolverState, timing: Timing) -> int:
     n_workers = ctx.plan.compile_ahead
     if n_workers == 0:
         return 0
-    dims, to_device = ctx.dims, ctx.to_device
+    dims = ctx.dims
     t0 = time.perf_counter()
     with CompileWatch() as watch:
         with ahead.dry_run(n_workers, place=lambda a: jax.device_put(a, replicated())):
             T = dims.horizon
-            zeros = [to_device(np.zeros(shape)) for shape in ((T, dims.nu), (T + 1, dims.nz), (T + 1, dims.nx))]
-            nominal = Nominal(*zeros, to_device(np.zeros((T + 1, ctx.nZ))), 0.0)
+            zeros = [on_device(np.zeros(shape)) for shape in ((T, dims.nu), (T + 1, dims.nz), (T + 1, dims.nx))]
+            nominal = Nominal(*zeros, on_device(np.zeros((T + 1, ctx.nZ))), 0.0)
             _, key = jax.random.split(st.key)
             sigma = st.sigma * reidentify_scale(st.reidentified)
             found = ctx.identify(key, nominal, st.gains, sigma, Experiment(bool(st.mirrored), bool(st.open_loop)))
-            backward_pass(found.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, to_device(st.mu), ctx.reg)
+            backward_pass(found.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, on_device(st.mu), ctx.reg)
             _, sub = jax.random.split(st.ls_key)
-            search(ctx, policy_of(nominal, st.gains), ctx.zero_k, to_device(np.inf), ctx.no_change, ctx.no_change, sub)
+            line_search(ctx.search, ctx.data, policy_of(nominal, st.gains), ctx.hold, ctx.candidates, sub)
             if ctx.noisy:
                 true_costs(ctx.dims, ctx.q, ctx.data, policy_of(nominal, st.gains))
     timing.add("compile", t0)
@@ -198,14 +189,14 @@ def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverS
     line search with k = 0, K = 0 rolls out ``u_init`` open loop), or a
     checkpoint; the first iteration's stages compiled ahead (:func:`compile_ahead`)."""
     if resume is not None:
-        st = load_checkpoint(resume, ctx.fingerprint, ctx.to_device)
+        st = load_checkpoint(resume, ctx.fingerprint, on_device)
         timing.first_compiles = compile_ahead(ctx, st, timing)
         return st
     cfg, dims = ctx.cfg, ctx.dims
     key = jax.random.PRNGKey(cfg.seed)
     st = SolverState(
         nominal=None,
-        gains=ctx.to_device(np.zeros((dims.horizon, dims.nu, ctx.nZ))),
+        gains=on_device(np.zeros((dims.horizon, dims.nu, ctx.nZ))),
         key=key,
         ls_key=jax.random.fold_in(key, 1),  # the forward passes' own noise stream
         mu=max(cfg.mu_init, cfg.mu_min),
@@ -214,8 +205,8 @@ def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverS
     )
     compiled_ahead = compile_ahead(ctx, st, timing)
     with CompileWatch() as watch:
-        first = Policy(u_init, ctx.to_device(np.zeros((dims.horizon, ctx.nZ))), st.gains)
-        ls, _ = measure(ctx, st, timing, first, ctx.zero_k, np.inf, ctx.no_change, ctx.no_change)
+        first = Policy(u_init, on_device(np.zeros((dims.horizon, ctx.nZ))), st.gains)
+        ls, _ = measure(ctx, st, timing, first, None, np.inf)
         st.nominal = Nominal.measured(ls)
         true_cost, open_cost = ground_truth(ctx, st, timing)
     record = st.record
@@ -265,7 +256,7 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
         record.sigma_history.append(record.sigma_history[-1])
 
     t0 = time.perf_counter()
-    back = backward_pass(st.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, ctx.to_device(st.mu), ctx.reg)
+    back = backward_pass(st.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, on_device(st.mu), ctx.reg)
     back_ok = bool(back.ok)
     st.mu = float(back.mu)
     grad_norm = float(np.max(np.abs(np.asarray(back.grad))))
@@ -290,11 +281,10 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
         return Outcome(stop, note, False, iter_rollouts)
     if back_ok:
         st.back_k = back.k
-        ls, accepted = measure(ctx, st, timing, policy_of(nominal, back.K), back.k, nominal.cost, back.dV1, back.dV2)
+        proposed = Step(back.k, None, back.dV1, back.dV2)
+        ls, accepted = measure(ctx, st, timing, policy_of(nominal, back.K), proposed, nominal.cost)
     else:  # noisy and no usable model: re-measure the current policy
-        ls, accepted = measure(
-            ctx, st, timing, policy_of(nominal, st.gains), ctx.zero_k, nominal.cost, ctx.no_change, ctx.no_change
-        )
+        ls, accepted = measure(ctx, st, timing, policy_of(nominal, st.gains), None, nominal.cost)
     iter_rollouts += ctx.plan.ls_rollouts
     record.rollouts += ctx.plan.ls_rollouts
     if accepted:

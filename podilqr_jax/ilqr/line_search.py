@@ -54,44 +54,63 @@ class LineSearchResult(NamedTuple):
     n_diverged: jnp.ndarray  # int: candidates with a non-finite rollout or cost (never accepted)
 
 
-@stage(static_argnames=("dims", "q", "n_fwd", "noisy", "chunk"), outputs=(LineSearchResult, Trajectory))
+class Search(NamedTuple):
+    """How every line search of a solve runs, fixed before its first iteration
+    (a static argument: a new one compiles a new program)."""
+
+    dims: EnvDims
+    q: int
+    n_fwd: int = 1  # rollouts per candidate; their mean is the candidate's trajectory
+    noisy: bool = False  # noisy rollouts (the task's ``Disturbance``)
+    chunk: Optional[int] = None  # at most this many rollouts at once (``ExecutionPlan.ls_chunk``); None: one batch
+
+
+class Candidates(NamedTuple):
+    """The step sizes tried (descending; alpha = 0 last under noise) and the
+    acceptance ratio, on the device."""
+
+    alphas: jnp.ndarray  # [n_alphas]
+    accept_ratio: jnp.ndarray
+
+
+class Step(NamedTuple):
+    """A step proposed about a nominal of cost ``cost0``: feed-forward ``k``
+    [T, nu] and the predicted decrease -(alpha dV1 + alpha^2 dV2). With ``k``,
+    ``dV1`` and ``dV2`` zero nothing is predicted and every candidate is the
+    policy as it is: a measurement (the driver's ``Context.hold``)."""
+
+    k: jnp.ndarray
+    cost0: jnp.ndarray
+    dV1: jnp.ndarray
+    dV2: jnp.ndarray
+
+
+@stage(static_argnames=("search",), outputs=(LineSearchResult, Trajectory))
 def line_search(
-    dims: EnvDims,
-    q: int,
-    data: EnvData,
-    policy: Policy,
-    k: jnp.ndarray,
-    alphas: jnp.ndarray,
-    cost0: jnp.ndarray,
-    dV1: jnp.ndarray,
-    dV2: jnp.ndarray,
-    accept_ratio: jnp.ndarray,
-    key: jax.Array,
-    n_fwd: int = 1,
-    noisy: bool = False,
-    chunk: Optional[int] = None,
+    search: Search, data: EnvData, policy: Policy, step: Step, candidates: Candidates, key: jax.Array
 ) -> LineSearchResult:
-    n_cand = alphas.shape[0]
-    batch = n_cand * n_fwd
-    candidate_offsets = alphas[:, None, None] * k[None]
-    no_perturbation = jnp.zeros((dims.horizon, dims.nu), k.dtype)
-    noise = sample(key, data.noise, batch, dims.horizon) if noisy else None
-    if chunk is not None and batch > chunk:
-        traj = _chunked_candidates(dims, q, data, policy, candidate_offsets, noise, n_fwd, chunk)
+    dims, q, n_fwd = search.dims, search.q, search.n_fwd
+    alphas = candidates.alphas
+    batch = alphas.shape[0] * n_fwd
+    candidate_offsets = alphas[:, None, None] * step.k[None]
+    no_perturbation = jnp.zeros((dims.horizon, dims.nu), step.k.dtype)
+    noise = sample(key, data.noise, batch, dims.horizon) if search.noisy else None
+    if search.chunk is not None and batch > search.chunk:
+        traj = _chunked_candidates(dims, q, data, policy, candidate_offsets, noise, n_fwd, search.chunk)
     else:
         offsets = jnp.repeat(candidate_offsets, n_fwd, axis=0) if n_fwd > 1 else candidate_offsets
         offsets, noise = shard_batch((offsets, noise), batch, dims)
         traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True, noise=noise)
         traj = average_repeats(traj, n_fwd)
-    return _choose(q, data, traj, alphas, cost0, dV1, dV2, accept_ratio)
+    return _choose(q, data, traj, alphas, step, candidates.accept_ratio)
 
 
-def _choose(q, data, traj: Trajectory, alphas, cost0, dV1, dV2, accept_ratio) -> LineSearchResult:
+def _choose(q, data, traj: Trajectory, alphas, step: Step, accept_ratio) -> LineSearchResult:
     """The largest accepted candidate of ``traj`` [n_cand, ...] (each candidate's mean rollout)."""
     cost, finite = batch_costs(traj.z, traj.u, data)
-    expected = -(alphas * dV1 + alphas**2 * dV2)
-    ratio = (cost0 - cost) / jnp.where(expected > 0, expected, jnp.inf)
-    ok = finite & (cost < cost0) & (ratio > accept_ratio)
+    expected = -(alphas * step.dV1 + alphas**2 * step.dV2)
+    ratio = (step.cost0 - cost) / jnp.where(expected > 0, expected, jnp.inf)
+    ok = finite & (cost < step.cost0) & (ratio > accept_ratio)
     accepted = jnp.any(ok)
     i = jnp.where(accepted, jnp.argmax(ok), alphas.shape[0] - 1)
     chosen = jax.tree_util.tree_map(lambda a: a[i], traj)

@@ -32,6 +32,7 @@ from .backward import QuadraticCost, Regularisation
 from .checkpoint import fingerprint
 from .config import SolverConfig
 from .driver import Callback, Context, RunOptions, run
+from .line_search import Candidates, Search, Step
 from .plan import ExecutionPlan, build_plan, line_search_chunk, sysid_chunk
 from .result import Result
 
@@ -170,6 +171,7 @@ def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int,
     selector = observation_selector(dims.nz, dims.nu, q)
     steps = _step_candidates(cfg, noisy=False)
     alphas = on_device(_step_candidates(cfg, noisy))
+    no_change = on_device(0.0)
     return Context(
         method=method,
         env=env,
@@ -179,7 +181,6 @@ def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int,
         q=q,
         identify=identify,
         noisy=noisy,
-        n_fwd=n_fwd,
         nZ=info_dim(dims.nz, dims.nu, q),
         reidentify=reidentify,
         escalate=reidentify > 0 and cfg.escalate,
@@ -187,13 +188,11 @@ def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int,
         cost_model=QuadraticCost(selector, data.z_target, data.Q, data.QT, data.R, data.goal_step, *box),
         reg=Regularisation(on_device(cfg.mu_min), on_device(cfg.mu_max), on_device(cfg.mu_factor)),
         steps=steps,
-        alphas=alphas,
         plan=plan,
-        accept_ratio=on_device(cfg.accept_ratio),
-        zero_k=on_device(np.zeros((dims.horizon, dims.nu))),
-        no_change=on_device(0.0),
+        search=Search(dims, q, n_fwd, noisy, plan.ls_chunk),
+        candidates=Candidates(alphas, on_device(cfg.accept_ratio)),
+        hold=Step(on_device(np.zeros((dims.horizon, dims.nu))), on_device(np.inf), no_change, no_change),
         fingerprint=fingerprint(method, env, dims, cfg),
-        to_device=on_device,
         units=actuator_units(env, cfg).tolist() if method == "pod-ilqr" else [],
     )
 

@@ -44,7 +44,7 @@ def one_line_search(task: str, n_forward: int, chunk: Optional[int], n_alphas: i
 
     import podilqr_jax as pj
     from podilqr_jax.identify.info_state import info_dim
-    from podilqr_jax.ilqr.line_search import line_search
+    from podilqr_jax.ilqr.line_search import Candidates, Search, Step, line_search
     from podilqr_jax.sim.rollout import open_loop_policy
 
     base = _peak_mb()
@@ -54,9 +54,10 @@ def one_line_search(task: str, n_forward: int, chunk: Optional[int], n_alphas: i
     policy = open_loop_policy(jnp.zeros((dims.horizon, dims.nu)), info_dim(dims.nz, dims.nu, q))
     k = jnp.asarray(np.random.default_rng(0).normal(size=(dims.horizon, dims.nu)))
     alphas = jnp.asarray(np.append(0.5 ** np.arange(n_alphas), 0.0))
-    dynamic = (env.data, policy, k, alphas, jnp.asarray(np.inf), -1.0, 0.0, 1e-4, jax.random.PRNGKey(0))
+    step, candidates = Step(k, jnp.asarray(np.inf), -1.0, 0.0), Candidates(alphas, 1e-4)
+    dynamic = (env.data, policy, step, candidates, jax.random.PRNGKey(0))
     t0 = time.perf_counter()
-    compiled = line_search.lower(dims, q, *dynamic, n_forward, True, chunk).compile()
+    compiled = line_search.lower(Search(dims, q, n_forward, True, chunk), *dynamic).compile()
     after_compile = _peak_mb()
     memory = compiled.memory_analysis()
     ls = compiled(*dynamic)
