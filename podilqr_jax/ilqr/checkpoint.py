@@ -18,7 +18,6 @@ settings (``max_iterations`` may differ: that is how a run is extended).
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import os
@@ -63,7 +62,7 @@ def fingerprint(method: str, env, dims, cfg) -> dict[str, Any]:
     digest.update(str(int(data.goal_step)).encode())
     config = {
         k: v
-        for k, v in dataclasses.asdict(cfg).items()
+        for k, v in cfg.flat().items()
         if k not in _RESUMABLE_CHANGES and not (k in _LATER_DEFAULTS and v == _LATER_DEFAULTS[k])
     }
     return {

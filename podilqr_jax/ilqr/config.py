@@ -78,8 +78,56 @@ VARIANTS = ("plain", "feedback", "averaged", "nominal")
 
 
 @dataclasses.dataclass(frozen=True)
-class SolverConfig:
-    """Settings of POD-iLQR (and of the model-based reference solver).
+class ILQRSettings:
+    """The paper's iLQR: iterations, stopping tolerances, regularisation, line search.
+
+    Attributes:
+      max_iterations: iLQR iterations at most.
+      rtol: stop when an accepted step lowers the cost by less than rtol x J,
+        or when no step can and the predicted decrease is below rtol x J.
+      gtol: stop when max_t |dJ/du_t| on the identified model is below gtol.
+      mu_init, mu_min, mu_max, mu_factor: Levenberg-Marquardt regularisation:
+        start, floor, ceiling (past it the solve stops) and growth factor.
+      n_alphas: line-search candidates alpha = 1, 1/2, ..., 2^-(n_alphas-1),
+        all rolled out as one batch.
+      accept_ratio: accept a step only if the actual decrease is at least this
+        fraction of the predicted one (and strictly positive).
+      seed: PRNG seed of the perturbations and of the noise (same seed, same
+        result).
+    """
+
+    max_iterations: int = 300
+    rtol: float = 1e-9
+    gtol: float = 1e-9
+    mu_init: float = 1e-6
+    mu_min: float = 1e-6
+    mu_max: float = 1e10
+    mu_factor: float = 2.0
+    n_alphas: int = 10
+    accept_ratio: float = 1e-4
+    seed: int = 0
+
+    def validate(self) -> None:
+        """Raise a ``ConfigError`` for the first of this group's settings out of its range, saying what it takes."""
+        check_int("max_iterations", self.max_iterations, 1)
+        check_int("n_alphas", self.n_alphas, 1)
+        check_int("seed", self.seed, 0)
+        for name in ("mu_max", "mu_factor"):
+            _positive(name, getattr(self, name))
+        for name in ("rtol", "gtol", "mu_init", "mu_min", "accept_ratio"):
+            check_nonnegative(name, getattr(self, name))
+        if self.mu_factor <= 1:
+            raise ConfigError(f"`mu_factor` must be > 1 so that regularisation can grow; got {self.mu_factor!r}.")
+        if self.mu_min > self.mu_max:
+            raise ConfigError(
+                f"`mu_min` ({self.mu_min:g}) is above `mu_max` ({self.mu_max:g}); choose mu_min <= mu_max."
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class IdentificationSettings:
+    """POD-iLQR's system identification: the information state, the sysid
+    batch, its perturbations and the least-squares fit.
 
     Attributes:
       q: past observations in the information state; None picks 1 when the
@@ -87,7 +135,7 @@ class SolverConfig:
       n_s: sysid rollouts per iteration (must be >= q (nz + nu), the number of
         regressors of the least-squares fit). None (the default) scales with
         the model: ``MIN_N_S`` = 40 or twice the regressors, whichever is more
-        (40 on every bundled and gallery task; ``resolved_n_s``).
+        (40 on every bundled and gallery task; ``SolverConfig.resolved_n_s``).
       sigma: standard deviation of the sysid control perturbations du, in
         the units ``sigma_scale`` says; with ``adapt_sigma`` the start of an
         adaptive scale.
@@ -107,55 +155,12 @@ class SolverConfig:
       max_residual: the fit residual (RMS over the response's, all steps)
         above which ``adapt_sigma`` reads curvature and shrinks sigma.
       sigma_range: the adapted sigma stays within this factor of ``sigma``.
-      max_iterations: iLQR iterations at most.
-      rtol: stop when an accepted step lowers the cost by less than rtol x J,
-        or when no step can and the predicted decrease is below rtol x J.
-      gtol: stop when max_t |dJ/du_t| on the identified model is below gtol.
-      mu_init, mu_min, mu_max, mu_factor: Levenberg-Marquardt regularisation:
-        start, floor, ceiling (past it the solve stops) and growth factor.
-      n_alphas: line-search candidates alpha = 1, 1/2, ..., 2^-(n_alphas-1),
-        all rolled out as one batch.
-      accept_ratio: accept a step only if the actual decrease is at least this
-        fraction of the predicted one (and strictly positive).
       rcond: relative singular-value cut-off of the least-squares fit.
-      seed: PRNG seed of the perturbations and of the noise (same seed, same
-        result).
-      variant: one of ``VARIANTS`` (see there): plain, feedback (the default:
-        closed-loop identification measures better gains, noiseless too; see
-        docs/robustness.md), averaged or nominal. ``plain`` is the paper's
-        POD-iLQR as is, kept as its ablation.
-      n_avg: repeats of each sysid perturbation sequence averaged before the
-        fit (``averaged`` only); None picks 10 for ``averaged`` and 1 otherwise.
-      n_forward: noisy rollouts averaged into each line-search candidate
-        (``averaged`` only); None picks ``n_s`` for ``averaged``, 1 otherwise.
-      mu_cap: under noise a rejected step never ends the solve: the nominal is
-        re-measured, mu grows but never above mu_cap, and the solve goes on.
       estimator: the identification's estimator: ``"ols"`` (least squares, the
         paper's) or ``"iv"`` (instrumental variables with the injected
         perturbations and older outputs as instruments, consistent under
         measurement noise at n_avg = 1; see ``estimators`` and
         docs/estimators.md). Works with every variant.
-      memory_budget_mb: the sysid batch (n_s x n_avg rollouts) and the line
-        search's ((n_alphas + 1) x n_forward under noise) run in chunks that
-        fit this budget (``rollout.bytes_per_rollout`` estimates a rollout's
-        share); a batch that fits runs at once.
-      rollout_chunk: rollouts per chunk (of both batches), overriding the budget.
-      reidentify: re-identifications a noiseless data-based solve makes when no
-        step lowers the cost and mu has passed mu_max, before it stops
-        ``line_search_failed``: each one draws fresh perturbations at another
-        scale (``reidentify_scale``: sigma x 0.1, then x 10, x 0.01, x 100, ...)
-        and starts mu afresh; an accepted step returns to sigma. When they
-        are spent and ``escalate`` is on, the solve changes the experiment
-        for the rest of the solve, and goes through the scales again each
-        time: first to mirrored perturbation pairs (``mirrored``), then to
-        the paper's open-loop identification without pairs (``plain``).
-      saturated_open_loop: in closed-loop identification, no feedback on a
-        control that sits on its ctrlrange bound in the nominal, so every
-        perturbation of it acts on one side as in open loop (with the
-        feedback the response pushed it outward and the fit lost the
-        control's column; docs/robustness.md). False: the gains as they are.
-      escalate: the last recoveries before ``line_search_failed``, above
-        (measured on dm_control's cart-pole and pendulum, docs/robustness.md).
       mirrored: roll out every sysid perturbation sequence as the pair +du,
         -du (2 n_s x n_avg rollouts) and fit on the half-differences, which
         cancel the response's even-order terms in du: the curvature bias of
@@ -168,25 +173,6 @@ class SolverConfig:
         gain is read out of the response's curvature where nothing was
         measured; the model and the gains are zero there. False keeps every
         direction above ``rcond`` (the behaviour before; docs/robustness.md).
-      impl: MJX implementation of the solve's rollouts, one of ``IMPLS``
-        (``jax`` or ``warp``). The model-based reference differentiates
-        through MJX and always runs ``jax``.
-      engine: the engine of every rollout of the solve, one of ``ENGINES``:
-        ``auto`` (the default: MJX on a GPU or TPU; on a CPU MuJoCo's C
-        engine where it is faster, ``sim.engines``), ``mjx`` or ``native``.
-        The engine that ran is in the result (``Result.engine``).
-        The native engine has no derivative: its model-based reference
-        takes central differences (``jacobian`` auto or differences).
-      jacobian: how the model-based reference linearises the dynamics, one of
-        ``JACOBIAN_SETTINGS``: ``auto`` (the default) takes central
-        differences of MJX's step on a contact-rich model (at least
-        ``sim.contacts.MANY_ROWS`` constraint rows) or one with a free or
-        ball joint, and the exact forward-mode derivative otherwise;
-        ``exact`` or ``differences`` force one. At an active contact the
-        forward-mode derivative is NaN under the elliptic friction cone, at
-        zero angular rate a quaternion's is zero, and its program compiles
-        for about twice as long (benchmarks/journal.md).
-        POD-iLQR does not read it.
     """
 
     q: Optional[int] = None
@@ -196,43 +182,275 @@ class SolverConfig:
     adapt_sigma: bool = True
     max_residual: float = 1e-3
     sigma_range: float = 1e3
-    max_iterations: int = 300
-    rtol: float = 1e-9
-    gtol: float = 1e-9
-    mu_init: float = 1e-6
-    mu_min: float = 1e-6
-    mu_max: float = 1e10
-    mu_factor: float = 2.0
-    n_alphas: int = 10
-    accept_ratio: float = 1e-4
     rcond: float = 1e-10
-    seed: int = 0
+    estimator: str = "ols"
+    mirrored: bool = False
+    cap_rank: bool = True
+
+    def validate(self) -> None:
+        """Raise a ``ConfigError`` for the first of this group's settings out of its range, saying what it takes."""
+        for name in ("mirrored", "cap_rank"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"`{name}` must be true or false; got {getattr(self, name)!r}.")
+        if self.estimator not in ESTIMATORS:
+            raise ConfigError(
+                f"Unknown estimator {self.estimator!r}; choose one of {', '.join(ESTIMATORS)} (see docs/estimators.md)."
+            )
+        if self.n_s is not None:
+            check_int("n_s", self.n_s, 1)
+        if self.q is not None:
+            check_int("q", self.q, 1)
+        if self.sigma_scale not in SIGMA_SCALES:
+            raise ConfigError(
+                f"Unknown `sigma_scale` {self.sigma_scale!r}; choose one of {', '.join(SIGMA_SCALES)} "
+                "(per actuator's ctrlrange, or one absolute sigma)."
+            )
+        if _finite_number("sigma_range", self.sigma_range) < 1:
+            raise ConfigError(f"`sigma_range` must be >= 1 (a factor either side of sigma); got {self.sigma_range!r}.")
+        for name in ("sigma", "max_residual"):
+            _positive(name, getattr(self, name))
+        check_nonnegative("rcond", self.rcond)
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseSettings:
+    """The paper's variants of POD-iLQR under noise (docs/noise.md).
+
+    Attributes:
+      variant: one of ``VARIANTS`` (see there): plain, feedback (the default:
+        closed-loop identification measures better gains, noiseless too; see
+        docs/robustness.md), averaged or nominal. ``plain`` is the paper's
+        POD-iLQR as is, kept as its ablation.
+      n_avg: repeats of each sysid perturbation sequence averaged before the
+        fit (``averaged`` only); None picks 10 for ``averaged`` and 1 otherwise.
+      n_forward: noisy rollouts averaged into each line-search candidate
+        (``averaged`` only); None picks ``n_s`` for ``averaged``, 1 otherwise.
+      mu_cap: under noise a rejected step never ends the solve: the nominal is
+        re-measured, mu grows but never above mu_cap, and the solve goes on.
+    """
+
     variant: str = "feedback"
     n_avg: Optional[int] = None
     n_forward: Optional[int] = None
     mu_cap: float = 1e3
-    estimator: str = "ols"
-    memory_budget_mb: float = 2048.0
-    rollout_chunk: Optional[int] = None
-    impl: str = "jax"
-    engine: str = "auto"
-    jacobian: str = "auto"
+
+    def validate(self) -> None:
+        """Raise a ``ConfigError`` for the first of this group's settings out of its range, saying what it takes."""
+        if self.variant not in VARIANTS:
+            raise ConfigError(
+                f"Unknown variant {self.variant!r}; choose one of {', '.join(VARIANTS)} (see docs/noise.md)."
+            )
+        for name in ("n_avg", "n_forward"):
+            value = getattr(self, name)
+            if value is not None:
+                check_int(name, value, 1)
+                if value > 1 and self.variant != "averaged":
+                    raise ConfigError(
+                        f"`{name}`={value} only applies to variant='averaged' (got variant={self.variant!r}); "
+                        f"set variant='averaged' or drop {name}."
+                    )
+        _positive("mu_cap", self.mu_cap)
+
+
+@dataclasses.dataclass(frozen=True)
+class RecoverySettings:
+    """What a noiseless data-based solve tries before it stops ``line_search_failed``
+    (docs/robustness.md).
+
+    Attributes:
+      reidentify: re-identifications a noiseless data-based solve makes when no
+        step lowers the cost and mu has passed mu_max, before it stops
+        ``line_search_failed``: each one draws fresh perturbations at another
+        scale (``reidentify_scale``: sigma x 0.1, then x 10, x 0.01, x 100, ...)
+        and starts mu afresh; an accepted step returns to sigma. When they
+        are spent and ``escalate`` is on, the solve changes the experiment
+        for the rest of the solve, and goes through the scales again each
+        time: first to mirrored perturbation pairs (``mirrored``), then to
+        the paper's open-loop identification without pairs (``plain``).
+      escalate: the last recoveries before ``line_search_failed``, above
+        (measured on dm_control's cart-pole and pendulum, docs/robustness.md).
+      saturated_open_loop: in closed-loop identification, no feedback on a
+        control that sits on its ctrlrange bound in the nominal, so every
+        perturbation of it acts on one side as in open loop (with the
+        feedback the response pushed it outward and the fit lost the
+        control's column; docs/robustness.md). False: the gains as they are.
+    """
+
     reidentify: int = 2
-    mirrored: bool = False
     escalate: bool = True
     saturated_open_loop: bool = True
-    cap_rank: bool = True
 
-    def replace(self, **changes: Any) -> "SolverConfig":
-        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+    def validate(self) -> None:
+        """Raise a ``ConfigError`` for the first of this group's settings out of its range, saying what it takes."""
+        check_int("reidentify", self.reidentify, 0)
+
+
+@dataclasses.dataclass(frozen=True)
+class ExecutionSettings:
+    """How a solve runs, not what it computes (the rest is decided by the
+    solver's ``ExecutionPlan`` and the environment variables, docs/environment.md).
+
+    Attributes:
+      engine: the engine of every rollout of the solve, one of ``ENGINES``:
+        ``auto`` (the default: MJX on a GPU or TPU; on a CPU MuJoCo's C
+        engine where it is faster, ``sim.engines``), ``mjx`` or ``native``.
+        The engine that ran is in the result (``Result.engine``).
+        The native engine has no derivative: its model-based reference
+        takes central differences (``jacobian`` auto or differences).
+      impl: MJX implementation of the solve's rollouts, one of ``IMPLS``
+        (``jax`` or ``warp``). The model-based reference differentiates
+        through MJX and always runs ``jax``.
+      memory_budget_mb: the sysid batch (n_s x n_avg rollouts) and the line
+        search's ((n_alphas + 1) x n_forward under noise) run in chunks that
+        fit this budget (``rollout.bytes_per_rollout`` estimates a rollout's
+        share); a batch that fits runs at once.
+      rollout_chunk: rollouts per chunk (of both batches), overriding the budget.
+    """
+
+    engine: str = "auto"
+    impl: str = "jax"
+    memory_budget_mb: float = 2048.0
+    rollout_chunk: Optional[int] = None
+
+    def validate(self) -> None:
+        """Raise a ``ConfigError`` for the first of this group's settings out of its range, saying what it takes."""
+        if self.engine not in ENGINES:
+            raise ConfigError(
+                f"Unknown `engine` {self.engine!r}; choose one of {', '.join(ENGINES)} (MJX, MuJoCo's C engine "
+                "batched on the CPU's cores, or auto: MJX on an accelerator, the faster of the two on a CPU)."
+            )
+        if self.engine == "native" and self.impl != "jax":
+            raise ConfigError(
+                f"`impl`={self.impl!r} picks an MJX implementation, but `engine`='native' runs MuJoCo's C engine; "
+                "drop impl, or use engine='mjx' (or auto) with it."
+            )
+        check_impl(self.impl)
+        _positive("memory_budget_mb", self.memory_budget_mb)
+        if self.rollout_chunk is not None:
+            check_int("rollout_chunk", self.rollout_chunk, 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class ReferenceSettings:
+    """The model-based reference's own settings (POD-iLQR does not read them).
+
+    Attributes:
+      jacobian: how the model-based reference linearises the dynamics, one of
+        ``JACOBIAN_SETTINGS``: ``auto`` (the default) takes central
+        differences of MJX's step on a contact-rich model (at least
+        ``sim.contacts.MANY_ROWS`` constraint rows) or one with a free or
+        ball joint, and the exact forward-mode derivative otherwise;
+        ``exact`` or ``differences`` force one. At an active contact the
+        forward-mode derivative is NaN under the elliptic friction cone, at
+        zero angular rate a quaternion's is zero, and its program compiles
+        for about twice as long (benchmarks/journal.md).
+    """
+
+    jacobian: str = "auto"
+
+    def validate(self) -> None:
+        """Raise a ``ConfigError`` for the first of this group's settings out of its range, saying what it takes."""
+        if self.jacobian not in JACOBIAN_SETTINGS:
+            raise ConfigError(
+                f"Unknown `jacobian` {self.jacobian!r}; choose one of {', '.join(JACOBIAN_SETTINGS)} (the model-based "
+                "reference's linearisation: forward mode, central differences, or auto by the model)."
+            )
+
+
+GROUPS: dict[str, type] = {
+    "ilqr": ILQRSettings,
+    "identification": IdentificationSettings,
+    "noise": NoiseSettings,
+    "recovery": RecoverySettings,
+    "execution": ExecutionSettings,
+    "reference": ReferenceSettings,
+}
+"""The groups of ``SolverConfig``: its field name and the record of each."""
+
+SETTINGS: dict[str, str] = {f.name: group for group, cls in GROUPS.items() for f in dataclasses.fields(cls)}
+"""Every flat setting name (``--set KEY=VALUE``, ``default_config(env, **flat)``,
+a task file's ``[solver]`` table) and the group that holds it."""
+
+
+@dataclasses.dataclass(frozen=True, init=False)
+class SolverConfig:
+    """Settings of POD-iLQR (and of the model-based reference solver), in groups.
+
+    Each group is a frozen record that validates itself. Every setting also
+    has its flat name (``SETTINGS``), as a keyword and as an attribute:
+    ``SolverConfig(n_s=80, variant="averaged")`` is
+    ``SolverConfig(identification=IdentificationSettings(n_s=80),
+    noise=NoiseSettings(variant="averaged"))``, and ``cfg.n_s`` reads
+    ``cfg.identification.n_s``. ``replace`` takes either, and a group may
+    also be given as a dict of its settings (a task file's
+    ``[solver.identification]`` table). Results and checkpoints record the
+    flat settings (:meth:`flat`).
+
+    Attributes:
+      ilqr: the paper's iLQR: iterations, tolerances, regularisation, line
+        search, seed (:class:`ILQRSettings`).
+      identification: q, n_s, the sysid perturbations and the fit
+        (:class:`IdentificationSettings`).
+      noise: the paper's variants under noise (:class:`NoiseSettings`).
+      recovery: what a solve tries before ``line_search_failed``
+        (:class:`RecoverySettings`).
+      execution: the engine, MJX's implementation, memory
+        (:class:`ExecutionSettings`).
+      reference: the model-based reference's own (:class:`ReferenceSettings`).
+    """
+
+    ilqr: ILQRSettings
+    identification: IdentificationSettings
+    noise: NoiseSettings
+    recovery: RecoverySettings
+    execution: ExecutionSettings
+    reference: ReferenceSettings
+
+    def __init__(self, **settings: Any) -> None:
+        unknown = set(settings) - set(SETTINGS) - set(GROUPS)
         if unknown:
             raise ConfigError(
-                f"Unknown solver setting(s) {sorted(unknown)}; known settings: "
-                f"{sorted(f.name for f in dataclasses.fields(self))}."
+                f"Unknown solver setting(s) {sorted(unknown)}; known settings: {sorted(SETTINGS)} "
+                f"(or a group: {', '.join(GROUPS)})."
             )
-        return dataclasses.replace(self, **changes)
+        for group, cls in GROUPS.items():
+            record = settings.get(group)
+            if record is None:
+                record = cls()
+            elif isinstance(record, dict):  # a task file's [solver.<group>] table
+                known = {f.name for f in dataclasses.fields(cls)}
+                if set(record) - known:
+                    raise ConfigError(
+                        f"Unknown setting(s) {sorted(set(record) - known)} in the group `{group}`; "
+                        f"it holds {', '.join(sorted(known))}."
+                    )
+                record = cls(**record)
+            elif not isinstance(record, cls):
+                raise ConfigError(
+                    f"`{group}` must be a {cls.__name__} (or a table of its settings); got {type(record).__name__}. "
+                    f"Build it as {cls.__name__}(...), or give its settings by their flat names."
+                )
+            changes = {name: value for name, value in settings.items() if SETTINGS.get(name) == group}
+            object.__setattr__(self, group, dataclasses.replace(record, **changes) if changes else record)
+
+    def __getattr__(self, name: str) -> Any:
+        group = SETTINGS.get(name)
+        if group is None:
+            raise AttributeError(f"'SolverConfig' has no setting {name!r}")
+        return getattr(object.__getattribute__(self, group), name)
+
+    def flat(self) -> dict[str, Any]:
+        """Every setting by its flat name (``SETTINGS``), as results and checkpoints record them."""
+        return {name: getattr(getattr(self, group), name) for name, group in SETTINGS.items()}
+
+    def replace(self, **changes: Any) -> "SolverConfig":
+        """A copy with ``changes``: flat settings or whole groups (a group and
+        one of its flat settings together: the setting wins)."""
+        groups = {group: getattr(self, group) for group in GROUPS}
+        return SolverConfig(**(groups | changes))
 
     def resolved_q(self, env: Env) -> int:
+        """``q``, or where it is None 1 on a fully observed task and 2 otherwise."""
         if self.q is not None:
             return self.q
         return 1 if env.fully_observed else 2
@@ -245,6 +463,7 @@ class SolverConfig:
         return max(MIN_N_S, 2 * n_regressors(env.dims.nz, env.dims.nu, self.resolved_q(env)))
 
     def resolved_n_avg(self) -> int:
+        """``n_avg``, or where it is None 10 for the averaged variant and 1 otherwise."""
         if self.n_avg is not None:
             return self.n_avg
         return 10 if self.variant == "averaged" else 1
@@ -261,83 +480,25 @@ class SolverConfig:
         return max(group, fit - fit % group)
 
     def resolved_n_forward(self) -> int:
+        """``n_forward``, or where it is None ``n_s`` for the averaged variant and 1 otherwise."""
         if self.n_forward is not None:
             return self.n_forward
         return self.n_s if self.variant == "averaged" else 1
 
     def validate(self, env: Env, data_based: bool = True) -> int:
-        """Check every setting against the task; returns the q to use."""
-        if self.variant not in VARIANTS:
-            raise ConfigError(
-                f"Unknown variant {self.variant!r}; choose one of {', '.join(VARIANTS)} (see docs/noise.md)."
-            )
-        for name in ("n_avg", "n_forward"):
-            value = getattr(self, name)
-            if value is not None:
-                check_int(name, value, 1)
-                if value > 1 and self.variant != "averaged":
-                    raise ConfigError(
-                        f"`{name}`={value} only applies to variant='averaged' (got variant={self.variant!r}); "
-                        f"set variant='averaged' or drop {name}."
-                    )
-        if self.engine not in ENGINES:
-            raise ConfigError(
-                f"Unknown `engine` {self.engine!r}; choose one of {', '.join(ENGINES)} (MJX, MuJoCo's C engine "
-                "batched on the CPU's cores, or auto: MJX on an accelerator, the faster of the two on a CPU)."
-            )
-        if self.engine == "native" and self.impl != "jax":
-            raise ConfigError(
-                f"`impl`={self.impl!r} picks an MJX implementation, but `engine`='native' runs MuJoCo's C engine; "
-                "drop impl, or use engine='mjx' (or auto) with it."
-            )
-        check_impl(self.impl)
+        """Check every group, then the settings against each other and the task; returns the q to use."""
+        self.noise.validate()
+        self.execution.validate()
         if self.engine == "native" and self.jacobian == "exact" and not data_based:
             raise ConfigError(
                 "`jacobian`='exact' differentiates through MJX, but `engine`='native' runs MuJoCo's C engine, "
                 "which has no derivative; use jacobian='differences' (or auto), or engine='mjx'."
             )
-        if self.jacobian not in JACOBIAN_SETTINGS:
-            raise ConfigError(
-                f"Unknown `jacobian` {self.jacobian!r}; choose one of {', '.join(JACOBIAN_SETTINGS)} (the model-based "
-                "reference's linearisation: forward mode, central differences, or auto by the model)."
-            )
-        for name in ("mirrored", "cap_rank"):
-            if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"`{name}` must be true or false; got {getattr(self, name)!r}.")
-        _positive("mu_cap", self.mu_cap)
-        _positive("memory_budget_mb", self.memory_budget_mb)
-        if self.rollout_chunk is not None:
-            check_int("rollout_chunk", self.rollout_chunk, 1)
-        if self.estimator not in ESTIMATORS:
-            raise ConfigError(
-                f"Unknown estimator {self.estimator!r}; choose one of {', '.join(ESTIMATORS)} (see docs/estimators.md)."
-            )
-        if self.n_s is not None:
-            check_int("n_s", self.n_s, 1)
+        self.reference.validate()
+        self.identification.validate()
+        self.ilqr.validate()
+        self.recovery.validate()
         n_s = self.resolved_n_s(env)
-        check_int("max_iterations", self.max_iterations, 1)
-        check_int("n_alphas", self.n_alphas, 1)
-        check_int("seed", self.seed, 0)
-        check_int("reidentify", self.reidentify, 0)
-        if self.q is not None:
-            check_int("q", self.q, 1)
-        if self.sigma_scale not in SIGMA_SCALES:
-            raise ConfigError(
-                f"Unknown `sigma_scale` {self.sigma_scale!r}; choose one of {', '.join(SIGMA_SCALES)} "
-                "(per actuator's ctrlrange, or one absolute sigma)."
-            )
-        if _finite_number("sigma_range", self.sigma_range) < 1:
-            raise ConfigError(f"`sigma_range` must be >= 1 (a factor either side of sigma); got {self.sigma_range!r}.")
-        for name in ("sigma", "mu_max", "mu_factor", "max_residual"):
-            _positive(name, getattr(self, name))
-        for name in ("rtol", "gtol", "mu_init", "mu_min", "accept_ratio", "rcond"):
-            check_nonnegative(name, getattr(self, name))
-        if self.mu_factor <= 1:
-            raise ConfigError(f"`mu_factor` must be > 1 so that regularisation can grow; got {self.mu_factor!r}.")
-        if self.mu_min > self.mu_max:
-            raise ConfigError(
-                f"`mu_min` ({self.mu_min:g}) is above `mu_max` ({self.mu_max:g}); choose mu_min <= mu_max."
-            )
         q = self.resolved_q(env) if data_based else 1
         T = env.dims.horizon
         if T <= q:

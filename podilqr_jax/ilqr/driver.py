@@ -527,7 +527,7 @@ def terminate(ctx: Context, st: SolverState, stop: Stop, timing: Timing, watch: 
         run_s=max(0.0, wall - compile_s),
         compiles_per_iteration=timing.compiles,
         phase_s=timing.phase_s,
-        config=dataclasses.asdict(cfg) | {"q": ctx.q},
+        config=cfg.flat() | {"q": ctx.q},
         control_dt=env.control_dt,
         observation_labels=env.observation_labels,
         state_labels=env.state_labels,

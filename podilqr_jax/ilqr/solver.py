@@ -14,7 +14,6 @@ frozen :class:`~podilqr_jax.ilqr.driver.Context`; ``driver`` runs the loop
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from typing import Optional
 
@@ -30,7 +29,7 @@ from ..sim.rollout import on_device
 from ..task.env import Env, mjx_model_of
 from .backward import QuadraticCost, Regularisation
 from .checkpoint import fingerprint
-from .config import SolverConfig
+from .config import GROUPS, SETTINGS, SolverConfig
 from .driver import Callback, Context, RunOptions, run
 from .line_search import Candidates, Search, Step
 from .plan import ExecutionPlan, build_plan, line_search_chunk, sysid_chunk
@@ -41,16 +40,15 @@ __all__ = ["Callback", "RunOptions", "default_config", "solve", "solve_model_bas
 
 def default_config(env: Env, **overrides) -> SolverConfig:
     """The task's recommended settings (``env`` defaults), with overrides."""
-    known = {f.name for f in dataclasses.fields(SolverConfig)}
+    known = set(SETTINGS) | set(GROUPS)
     unknown = sorted(set(env.solver_defaults) - known)
     if unknown:
         raise ConfigError(
             f"The task {env.name!r} recommends unknown solver setting(s) {unknown} (the [solver] table of a task "
             f"file, or Env.solver_defaults); known settings: {sorted(known)}."
         )
-    settings = dict(env.solver_defaults)
-    settings.update(overrides)
-    cfg = SolverConfig().replace(**settings)
+    # The overrides after the task's defaults: a group given here replaces the task's settings of that group.
+    cfg = SolverConfig().replace(**env.solver_defaults).replace(**overrides)
     return cfg if cfg.n_s is not None else cfg.replace(n_s=cfg.resolved_n_s(env))
 
 

@@ -29,7 +29,7 @@ task file; see docs/task_files.md for a worked example)::
     process = 0.001               # w_t, added to qpos/qvel after each control step
     measurement = 0.001           # v_t, added to each observation
 
-    [solver]                      # any SolverConfig field
+    [solver]                      # any solver setting by its name (or [solver.<group>] tables)
     sigma = 1e-5
     n_s = 40
     # variant = "feedback"        # plain | feedback | averaged | nominal
