@@ -37,16 +37,23 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
 from untuned_suite import SUITE  # noqa: E402 - the benchmarks folder is not a package
 
-LEFT_OUT = ("wall", "_s", "seconds", "compile", "time", "machine", "date", "version", "per_s", "host", "path", "plan")
+# JSON keys that are timings or facts of the machine, not results: names ending in _s (seconds), and these parts.
+LEFT_OUT = ("wall", "seconds", "compile", "time", "machine", "date", "version", "host", "path", "plan")
+
+
+def _left_out(key: str) -> bool:
+    return key.endswith("_s") or any(part in key for part in LEFT_OUT)
+
+
 STUDIES = ("reproduce/summary.json", "evaluate/evaluate.json", "noisy/result.json")
 
 
 def record(out: str) -> None:
+    os.environ["PODILQR_CACHE"] = "0"  # every program compiled afresh, as on a new machine (read on import)
     import podilqr_jax as pj
     from podilqr_jax.task.taskfile import load_task
 
     os.makedirs(out, exist_ok=True)
-    os.environ["PODILQR_CACHE"] = "0"  # every program compiled afresh, as on a new machine
     arrays: dict[str, np.ndarray] = {}
     envs = [(name, pj.make_task(name)) for name in pj.TASKS]
     envs += [(path, load_task(os.path.join(ROOT, "examples", "tasks", path))) for path, _ in SUITE]
@@ -74,7 +81,7 @@ def record(out: str) -> None:
 def _walk(x, y, path: str, found: list) -> None:
     if isinstance(x, dict) and isinstance(y, dict):
         for key in sorted(set(x) | set(y)):
-            if any(part in key for part in LEFT_OUT):
+            if _left_out(key):
                 continue
             if key not in x or key not in y:
                 found.append((f"{path}/{key}", "only in " + ("the second" if key in y else "the first")))
