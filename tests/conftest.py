@@ -10,12 +10,18 @@ tests/test_properties.py alone); below it the next modules reuse the
 programs already traced and compiled. (Dropping them after every module cost
 the suite 7% more CPU time: 1,293 against 1,201 CPU-s.)
 
-The suite has its own persistent compilation cache (``podilqr_jax.compilation.cache``): a
-fresh folder per pytest run (shared by its pytest-xdist workers), set before any
-test module imports the package and removed at the end, so a module that compiles what an earlier one already
-compiled loads it from disk, and the user's ~/.cache is left alone. Every run
-starts cold, so the tests stay correct without a cache. ``PODILQR_CACHE=0``
-switches it off.
+The suite has its own persistent compilation cache (``podilqr_jax.compilation.cache``),
+set before any test module imports the package and shared by the pytest-xdist
+workers: ``.test-cache/`` in the checkout (``TEST_CACHE``; ignored by git), kept
+between runs, so a module loads from disk what an earlier module or an earlier
+run already compiled, and the user's ~/.cache is left alone. Compiling is most of
+the suite's time: on 2 CPU cores a first run (a clean clone, as in CI) took 648 s
+and the next one, with the cache kept, 225 s (benchmarks/README.md). A run
+gives the same results cold or warm: the cache keys on everything a compiled
+program depends on (``compilation/cache.py``, ``compilation/stages.py``), and
+CI's clean clone always starts cold. The folder is emptied when it grows past
+``TEST_CACHE_LIMIT_BYTES``; deleting it gives a cold run; ``PODILQR_CACHE=0``
+switches the cache off; ``PODILQR_PYTEST_CACHE=DIR`` puts it elsewhere.
 """
 
 import os
@@ -25,12 +31,28 @@ import tempfile
 import jax
 import pytest
 
-_TEST_CACHE = None  # the folder this process made (and removes at the end)
+TEST_CACHE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), ".test-cache")
+TEST_CACHE_LIMIT_BYTES = 2 * 2**30  # a full run writes ~65 MB; each edit of the package adds its new programs
+_TEMPORARY = None  # a folder this process made because the checkout is not writable (removed at the end)
+
+
+def _folder_bytes(path: str) -> int:
+    return sum(os.path.getsize(os.path.join(d, f)) for d, _, names in os.walk(path) for f in names)
+
+
 if os.environ.get("PODILQR_CACHE", "1") != "0":
     # pytest-xdist's workers inherit the folder of the process that started them.
     if not os.environ.get("PODILQR_PYTEST_CACHE"):
-        _TEST_CACHE = tempfile.mkdtemp(prefix="podilqr-pytest-jax-cache-")
-        os.environ["PODILQR_PYTEST_CACHE"] = _TEST_CACHE
+        try:
+            if os.path.isdir(TEST_CACHE) and _folder_bytes(TEST_CACHE) > TEST_CACHE_LIMIT_BYTES:
+                shutil.rmtree(TEST_CACHE)
+            os.makedirs(TEST_CACHE, exist_ok=True)
+            if not os.access(TEST_CACHE, os.W_OK | os.X_OK):
+                raise PermissionError(TEST_CACHE)
+            folder = TEST_CACHE
+        except OSError:  # a read-only checkout: a fresh folder for this run
+            folder = _TEMPORARY = tempfile.mkdtemp(prefix="podilqr-pytest-jax-cache-")
+        os.environ["PODILQR_PYTEST_CACHE"] = folder
     os.environ["PODILQR_CACHE_DIR"] = os.environ["PODILQR_PYTEST_CACHE"]
 
 
@@ -43,8 +65,8 @@ def pytest_collection_modifyitems(config, items):
 
 
 def pytest_unconfigure(config):
-    if _TEST_CACHE is not None:
-        shutil.rmtree(_TEST_CACHE, ignore_errors=True)
+    if _TEMPORARY is not None:
+        shutil.rmtree(_TEMPORARY, ignore_errors=True)
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -128,11 +128,15 @@ def test_warm_run_loads_from_disk_and_gives_the_same_result(tmp_path):
 
 
 def test_traced_stages_are_not_kept_without_the_package_cache(tmp_path):
+    # On MuJoCo's C engine (nothing of MJX to compile): with the package's cache on, this solve
+    # keeps its fit and backward pass (2 stages; the rollout stages run C code, tests/test_native.py).
+    solve = SOLVE.replace("n_s=8)", "n_s=8, engine='native')")
+    assert solve != SOLVE
     folder = tmp_path / "off"
-    got = _run(SOLVE, tmp_path, PODILQR_CACHE_DIR=str(folder), PODILQR_CACHE="0")
+    got = _run(solve, tmp_path, PODILQR_CACHE_DIR=str(folder), PODILQR_CACHE="0")
     assert got["stages"] == {"exported": 0, "loaded": 0} and not folder.exists()
     theirs = tmp_path / "theirs"
-    got = _run(SOLVE, tmp_path, JAX_COMPILATION_CACHE_DIR=str(theirs))
+    got = _run(solve, tmp_path, JAX_COMPILATION_CACHE_DIR=str(theirs))
     assert got["stages"] == {"exported": 0, "loaded": 0} and not (theirs / "podilqr-stages").exists()
 
 

@@ -11,12 +11,12 @@ import json
 import os
 import subprocess
 import sys
-import textwrap
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import sharded_solve
 
 import podilqr_jax as pj
 from podilqr_jax.identify.info_state import info_dim
@@ -75,30 +75,23 @@ def test_memory_budget_sets_the_chunk():
         pj.SolverConfig(memory_budget_mb=0).validate(pj.make_task("pendulum-full"))
 
 
-_SHARDED_RUN = textwrap.dedent(
-    """
-    import json, sys
-    import jax, numpy as np
-    import podilqr_jax as pj
-    from podilqr_jax.sim.rollout import batch_sharding
-    env = pj.make_task("pendulum-full", horizon=8, noise="paper")
-    cfg = pj.default_config(env, variant="averaged", n_s=8, n_avg=2, n_forward=2, n_alphas=3, max_iterations=3)
-    r = pj.solve(env, cfg)
-    sharding = batch_sharding(16)
-    print(json.dumps({
-        "devices": jax.device_count(),
-        "sharded_over": 0 if sharding is None else len(sharding.device_set),
-        "cost": r.cost_history, "true": r.true_cost_history,
-        "K": np.asarray(r.K).tolist(), "controls": np.asarray(r.controls).tolist(),
-    }))
-    """
+_SHARDED_RUN = (
+    "import json\nimport jax\nimport podilqr_jax as pj\nimport sharded_solve\n"
+    "from podilqr_jax.sim.rollout import batch_sharding\n"
+    + sharded_solve.SOLVE
+    + "sharding = batch_sharding(sharded_solve.BATCH)\n"
+    "print(json.dumps({'devices': jax.device_count(), "
+    "'sharded_over': 0 if sharding is None else len(sharding.device_set), **sharded_solve.summary(r)}))\n"
 )
 
 
-def _run(devices: int) -> dict:
+def _run_four_devices() -> dict:
     env = dict(os.environ)
-    env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=4"
     env["JAX_PLATFORMS"] = "cpu"
+    env["PYTHONPATH"] = os.pathsep.join(
+        filter(None, [os.path.dirname(os.path.abspath(__file__)), env.get("PYTHONPATH")])
+    )
     out = subprocess.run(
         [sys.executable, "-c", _SHARDED_RUN], env=env, capture_output=True, text=True, timeout=600, check=True
     )
@@ -113,8 +106,7 @@ def test_sharded_over_four_devices_gives_the_same_result():
     3e-13 relative on the cost history), as with chunking above. A 1-ulp
     change of sigma moves the same histories by 2.9e-13 (K: 4.7e-13): other
     rounding stays far inside 1e-9."""
-    one, four = _run(1), _run(4)
-    assert one["devices"] == 1 and one["sharded_over"] == 0
+    one, four = sharded_solve.one_device(), _run_four_devices()
     assert four["devices"] == 4 and four["sharded_over"] == 4
     for key in ("cost", "true", "K", "controls"):
         a, b = np.asarray(four[key]), np.asarray(one[key])

@@ -41,24 +41,24 @@ def test_top_level_programs_carry_the_options_and_nested_calls_run():
     np.testing.assert_allclose(np.asarray(nested), np.asarray(top.z), rtol=1e-12, atol=1e-12)
 
 
-def test_the_options_change_the_compile_not_the_solve(tmp_path):
-    """A short noiseless solve with the options and with XLA's defaults
-    (``PODILQR_XLA_DEFAULTS=1``, a fresh process) takes the same steps: the
-    same iterations and costs to round-off."""
-    child = (
-        "import json, podilqr_jax as pj\n"
-        "from podilqr_jax.compilation import xla_options\n"
+def test_the_options_change_the_compile_not_the_solve():
+    """A short noiseless solve with the options (in this process) and with
+    XLA's defaults (``PODILQR_XLA_DEFAULTS=1``, a fresh process) takes the same
+    steps: the same iterations and costs to round-off."""
+    solve = (
         "env = pj.make_task('cartpole-partial', horizon=12)\n"
         "r = pj.solve(env, pj.default_config(env, max_iterations=4))\n"
-        "print(json.dumps({'options': xla_options.options(), 'costs': r.cost_history, 'K': r.K.ravel().tolist()}))\n"
     )
-    runs = {}
-    for defaults in ("0", "1"):
-        env = dict(os.environ, PODILQR_XLA_DEFAULTS=defaults, PODILQR_CACHE="0")
-        out = subprocess.run([sys.executable, "-c", child], env=env, capture_output=True, text=True, timeout=600)
-        assert out.returncode == 0, out.stderr[-3000:]
-        runs[defaults] = json.loads(out.stdout.strip().splitlines()[-1])
-    assert runs["0"]["options"] == xla_options.COMPILER_OPTIONS
+    report = "{'options': xla_options.options(), 'costs': r.cost_history, 'K': r.K.ravel().tolist()}"
+    ns = {"pj": pj, "xla_options": xla_options}
+    exec(solve + f"out = {report}", ns)
+    imports = "import json, podilqr_jax as pj\nfrom podilqr_jax.compilation import xla_options\n"
+    child = f"{imports}{solve}print(json.dumps({report}))\n"
+    env = dict(os.environ, PODILQR_XLA_DEFAULTS="1")  # the cache keys on the options: nothing is mixed
+    out = subprocess.run([sys.executable, "-c", child], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    runs = {"0": ns["out"], "1": json.loads(out.stdout.strip().splitlines()[-1])}
+    assert runs["0"]["options"] == xla_options.COMPILER_OPTIONS, "run without PODILQR_XLA_DEFAULTS set"
     assert runs["1"]["options"] == {}
     a, b = runs["0"], runs["1"]
     assert len(a["costs"]) == len(b["costs"]) == 5
