@@ -6,6 +6,7 @@ are shared through the suite's compilation cache)."""
 from __future__ import annotations
 
 import functools
+import os
 
 import numpy as np
 
@@ -18,6 +19,12 @@ SOLVE = f"""
 env = pj.make_task("pendulum-full", **{TASK!r})
 r = pj.solve(env, pj.default_config(env, **{SETTINGS!r}))
 """
+
+
+def child_environment(env: dict) -> dict:
+    """``env`` for a child process that imports this module (its folder on ``PYTHONPATH``)."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    return env | {"PYTHONPATH": os.pathsep.join(filter(None, [here, env.get("PYTHONPATH")]))}
 
 
 def summary(result) -> dict:

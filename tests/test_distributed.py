@@ -40,9 +40,7 @@ def _free_port() -> int:
 def _launch(n: int, tmp_path) -> list[dict]:
     env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS",)}
     env["JAX_PLATFORMS"] = "cpu"
-    env["PYTHONPATH"] = os.pathsep.join(
-        filter(None, [os.path.dirname(os.path.abspath(__file__)), env.get("PYTHONPATH")])
-    )
+    env = sharded_solve.child_environment(env)
     port = str(_free_port())
     procs = [
         subprocess.Popen(

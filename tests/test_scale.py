@@ -89,9 +89,7 @@ def _run_four_devices() -> dict:
     env = dict(os.environ)
     env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=4"
     env["JAX_PLATFORMS"] = "cpu"
-    env["PYTHONPATH"] = os.pathsep.join(
-        filter(None, [os.path.dirname(os.path.abspath(__file__)), env.get("PYTHONPATH")])
-    )
+    env = sharded_solve.child_environment(env)
     out = subprocess.run(
         [sys.executable, "-c", _SHARDED_RUN], env=env, capture_output=True, text=True, timeout=600, check=True
     )
