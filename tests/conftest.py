@@ -15,8 +15,8 @@ set before any test module imports the package and shared by the pytest-xdist
 workers: ``.test-cache/`` in the checkout (``TEST_CACHE``; ignored by git), kept
 between runs, so a module loads from disk what an earlier module or an earlier
 run already compiled, and the user's ~/.cache is left alone. Compiling is most of
-the suite's time: on 2 CPU cores a first run took 648-662 s (662 s in a clean
-clone, as CI runs it) and the next one, with the cache kept, 209-225 s
+the suite's time: on 2 CPU cores a first run took 641-742 s (662 s and 742 s in a
+clean clone, as CI runs it) and the next one, with the cache kept, 209-225 s
 (benchmarks/README.md). A run
 gives the same results cold or warm: the cache keys on everything a compiled
 program depends on (``compilation/cache.py``, ``compilation/stages.py``), and
