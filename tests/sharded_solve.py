@@ -14,7 +14,7 @@ TASK = {"horizon": 8, "noise": "paper"}
 SETTINGS = {"variant": "averaged", "n_s": 8, "n_avg": 2, "n_forward": 2, "n_alphas": 3, "max_iterations": 3}
 BATCH = SETTINGS["n_s"] * SETTINGS["n_avg"]  # the sysid batch that is sharded
 
-# For a child process: ``r``, the result (``import podilqr_jax as pj`` done).
+# The solve, for a child process and for ``one_device``: ``r``, the result (``pj`` the package).
 SOLVE = f"""
 env = pj.make_task("pendulum-full", **{TASK!r})
 r = pj.solve(env, pj.default_config(env, **{SETTINGS!r}))
@@ -46,5 +46,6 @@ def one_device() -> dict:
     from podilqr_jax.sim.rollout import batch_sharding
 
     assert jax.device_count() == 1 and batch_sharding(BATCH) is None, "the reference runs on one device"
-    env = pj.make_task("pendulum-full", **TASK)
-    return summary(pj.solve(env, pj.default_config(env, **SETTINGS)))
+    run = {"pj": pj}
+    exec(SOLVE, run)  # the children's solve, as they run it
+    return summary(run["r"])
