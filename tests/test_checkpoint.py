@@ -32,13 +32,15 @@ def _assert_same(a: pj.Result, b: pj.Result) -> None:
 
 @pytest.fixture(scope="module")
 def noisy_task():
+    """The noisy pendulum of tests/test_noise.py and of the CLI runs below; solved with
+    ``n_s`` at its default, as there, so that all of them run the same compiled programs."""
     return pj.make_task("pendulum-full", horizon=10, noise="paper")
 
 
 def test_resume_gives_the_uninterrupted_result(noisy_task, tmp_path):
     """Under noise (both PRNG streams, re-measured nominals and mu in play):
     4 iterations with checkpoints every 2, then resumed to 7, equal 7 straight."""
-    cfg = pj.default_config(noisy_task, n_s=12, max_iterations=7, seed=3)
+    cfg = pj.default_config(noisy_task, max_iterations=7, seed=3)
     straight = pj.solve(noisy_task, cfg)
     first = pj.solve(noisy_task, cfg.replace(max_iterations=4), checkpoint=tmp_path, checkpoint_every=2)
     assert first.iterations == 4
@@ -66,7 +68,7 @@ def test_resume_of_a_noiseless_solve_that_reuses_its_model(tmp_path):
 
 
 def test_resume_refuses_another_task_or_settings(noisy_task, tmp_path):
-    cfg = pj.default_config(noisy_task, n_s=12, max_iterations=2)
+    cfg = pj.default_config(noisy_task, max_iterations=2)
     pj.solve(noisy_task, cfg, checkpoint=tmp_path, checkpoint_every=1)
     with pytest.raises(pj.ConfigError, match=r"sigma: 0.01 -> 0.02"):
         pj.solve(noisy_task, cfg.replace(sigma=0.02), resume=tmp_path)
@@ -84,14 +86,12 @@ def test_resume_refuses_another_task_or_settings(noisy_task, tmp_path):
         pj.solve(noisy_task, cfg, checkpoint=tmp_path, checkpoint_every=0)
 
 
-def test_same_seed_same_result_bit_for_bit(tmp_path):
-    """Two solves with the same seed agree exactly (noiseless sysid draws
-    its perturbations from the seed too); another seed differs."""
-    env = pj.make_task("cartpole-partial", horizon=10, noise="paper")
-    cfg = pj.default_config(env, n_s=16, max_iterations=4, seed=11)
-    a, b = pj.solve(env, cfg), pj.solve(env, cfg)
+def test_same_seed_same_result_bit_for_bit(noisy_task):
+    """Two solves with the same seed agree exactly, counters included; another seed differs."""
+    cfg = pj.default_config(noisy_task, max_iterations=4, seed=11)
+    a, b = pj.solve(noisy_task, cfg), pj.solve(noisy_task, cfg)
     _assert_same(a, b)
-    c = pj.solve(env, cfg.replace(seed=12))
+    c = pj.solve(noisy_task, cfg.replace(seed=12))
     assert not np.array_equal(a.controls, c.controls)
 
 
@@ -158,7 +158,7 @@ def test_sigint_at_any_moment_stops_at_an_iteration_boundary(noisy_task, tmp_pat
 
     if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         pytest.skip("another SIGINT handler is installed in this process")
-    cfg = pj.default_config(noisy_task, n_s=12, max_iterations=500, seed=3)
+    cfg = pj.default_config(noisy_task, max_iterations=500, seed=3)
 
     def callback(info):
         if info.iteration == after_iteration:
@@ -185,7 +185,7 @@ def test_a_format_2_checkpoint_resumes_as_written(noisy_task, tmp_path):
     into format 2's layout resumes to the same result as format 3's."""
     from podilqr_jax.ilqr.checkpoint import _FORMAT_2_NAMES, FILE
 
-    cfg = pj.default_config(noisy_task, n_s=12, max_iterations=5, seed=4)
+    cfg = pj.default_config(noisy_task, max_iterations=5, seed=4)
     new, old = tmp_path / "3", tmp_path / "2"
     pj.solve(noisy_task, cfg.replace(max_iterations=3), checkpoint=new, checkpoint_every=1)
     with np.load(new / FILE) as npz:
