@@ -7,7 +7,10 @@ in ``benchmarks/untuned_suite.py``, no solver setting in any. For each task:
 - ``podilqr solve FILE --compare`` at the defaults (POD-iLQR and the model-based
   reference, both from zero controls);
 - with ``--seeds N``, POD-iLQR again with seeds 1..N (other sysid draws, the same
-  zero controls): the other starts that one solve does not see;
+  zero controls);
+- with ``--starts N``, both solvers from N other first guesses: zero controls plus
+  Gaussian noise of 0.3 times the control range's half-width (1 where an actuator is
+  not limited), clipped to the range, drawn with ``numpy.random.default_rng(j)``;
 
 and the table gives the default POD-iLQR cost over the reference's, the best cost
 any run reached, and where the two solvers part: the first iteration at which their
@@ -23,10 +26,12 @@ and the costs after the first accepted step with its step size.
 
     python benchmarks/basins.py                 # the --compare runs (about 3 min on 2 cores)
     python benchmarks/basins.py --seeds 3       # and three more POD-iLQR seeds per task (about 7 min)
+    python benchmarks/basins.py --seeds 3 --starts 3   # and both solvers from 3 other first guesses
     python benchmarks/basins.py --table-only    # print the table from runs/basins/
     python benchmarks/basins.py --first-step    # the first steps side by side (about 2 min)
 
-Results go to runs/basins/STEM/seedS.json (seed 0: the ``--compare`` run) and log.txt.
+Results go to runs/basins/STEM/seedS.json (seed 0: the ``--compare`` run),
+startJ.json (the costs from first guess J) and log.txt.
 """
 
 from __future__ import annotations
@@ -64,6 +69,45 @@ def run_one(path: str, seed: int, out_dir: str, timeout: float) -> str:
     return f"{stem(path)} seed {seed}: exit {rc} in {time.perf_counter() - t0:.0f} s"
 
 
+START = """
+import json, sys
+import numpy as np
+import podilqr_jax as pj
+from podilqr_jax.task.taskfile import load_task
+path, j = sys.argv[1], int(sys.argv[2])
+env = load_task(path)
+lo, hi = np.asarray(env.data.u_low), np.asarray(env.data.u_high)
+half = np.where(np.isfinite(hi - lo), (hi - lo) / 2, 1.0)
+u0 = np.random.default_rng(j).standard_normal((env.dims.horizon, env.dims.nu)) * 0.3 * half
+u0 = np.clip(u0, lo, hi)
+out = {}
+for name, solve in (("pod", pj.solve), ("ref", pj.solve_model_based)):
+    r = solve(env, pj.default_config(env), u_init=u0)
+    out[name] = {"cost": r.final_cost, "status": str(r.status), "iterations": r.iterations}
+print(json.dumps(out))
+"""
+
+
+def run_start(path: str, j: int, out_dir: str, timeout: float) -> str:
+    """Both solvers from first guess ``j`` (``START``, in a fresh process): runs/basins/STEM/startJ.json."""
+    folder = os.path.join(out_dir, stem(path))
+    os.makedirs(folder, exist_ok=True)
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", START, path, str(j)], capture_output=True, text=True, timeout=timeout
+        )
+    except subprocess.TimeoutExpired:
+        return f"{stem(path)} start {j}: timeout"
+    with open(os.path.join(folder, "log.txt"), "a") as log:
+        log.write(proc.stderr)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode == 0 and lines:
+        with open(os.path.join(folder, f"start{j}.json"), "w") as f:
+            f.write(lines[-1])
+    return f"{stem(path)} start {j}: exit {proc.returncode} in {time.perf_counter() - t0:.0f} s"
+
+
 def _load(path: str):
     try:
         with open(path) as f:
@@ -91,6 +135,11 @@ def row(path: str, out_dir: str) -> dict | None:
         seed = int(os.path.basename(f)[4:-5])
         if seed and (other := _load(f)) is not None:
             seeds[seed] = other["final_cost"]
+    starts = {}
+    for f in sorted(glob.glob(os.path.join(out_dir, name, "start*.json"))):
+        if (other := _load(f)) is not None:
+            starts[int(os.path.basename(f)[5:-5])] = (other["pod"]["cost"], other["ref"]["cost"])
+    known = [c for pair in starts.values() for c in pair]
     pairs = zip(first["states"], ref["states"], strict=True)
     gap = max(abs(a - b) for xs, ys in pairs for a, b in zip(xs, ys, strict=True))
     return {
@@ -103,7 +152,8 @@ def row(path: str, out_dir: str) -> dict | None:
         "ref_iterations": ref["iterations"],
         "ratio": first["final_cost"] / ref["final_cost"],
         "seeds": seeds,
-        "best": min(min(seeds.values()), ref["final_cost"]),
+        "starts": starts,
+        "best": min([*seeds.values(), ref["final_cost"], *known]),
         "part": parting(first["cost_history"], ref["cost_history"]),
         "state_gap": gap,
     }
@@ -111,15 +161,17 @@ def row(path: str, out_dir: str) -> dict | None:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| task | POD-iLQR (defaults) | model-based | ratio | POD-iLQR, seeds 0.. | best known | part at | state gap |",
-        "|---|---|---|---|---|---|---|---|",
+        "| task | POD-iLQR (defaults) | model-based | ratio | POD-iLQR, seeds 0.. | other first guesses, "
+        "POD-iLQR / model-based | best known | part at | state gap |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         seeds = ", ".join(f"{c:.6g}" for _, c in sorted(r["seeds"].items()))
+        starts = ", ".join(f"{a:.6g} / {b:.6g}" for _, (a, b) in sorted(r["starts"].items())) or "-"
         part = "never" if r["part"] is None else str(r["part"])
         lines.append(
             f"| {r['task']} | {r['pod']:.6g} ({r['pod_status']}, {r['pod_iterations']}) | "
-            f"{r['ref']:.6g} ({r['ref_status']}, {r['ref_iterations']}) | {r['ratio']:.4f} | {seeds} | "
+            f"{r['ref']:.6g} ({r['ref_status']}, {r['ref_iterations']}) | {r['ratio']:.4f} | {seeds} | {starts} | "
             f"{r['best']:.6g} | {part} | {r['state_gap']:.3g} |"
         )
     return "\n".join(lines)
@@ -151,6 +203,7 @@ def first_step(path: str) -> str:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=0, help="POD-iLQR runs with seeds 1..N besides the --compare run")
+    p.add_argument("--starts", type=int, default=0, help="both solvers from N other first guesses")
     p.add_argument("--only", default="", help="comma-separated task stems")
     p.add_argument("--out", default=OUT, help="results folder (default runs/basins)")
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per run")
@@ -171,6 +224,8 @@ def main(argv=None) -> int:
         for path in paths:
             for seed in range(args.seeds + 1):
                 print(run_one(path, seed, args.out, args.timeout), flush=True)
+            for j in range(1, args.starts + 1):
+                print(run_start(path, j, args.out, args.timeout), flush=True)
     rows = [r for r in (row(path, args.out) for path in paths) if r is not None]
     print(table(rows))
     return 0
