@@ -44,7 +44,7 @@ def build(output: Path) -> None:
         obj = getattr(podilqr_jax, name)
         if isinstance(obj, type) and issubclass(obj, tuple) and hasattr(obj, "_fields"):
             obj.__new__.__module__ = obj.__module__
-    pdoc.render.configure(docformat="restructuredtext", show_source=False, search=False)
+    pdoc.render.configure(docformat="google", show_source=False, search=False)
     pdoc.pdoc("podilqr_jax", output_directory=output)
 
 
