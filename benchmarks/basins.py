@@ -22,7 +22,9 @@ still share the nominal (zero controls) and the cost and differ only in the mode
 (identified from rollouts, or the exact linearisation): the relative difference of
 the feedforward ``k_t`` of their first backward pass, over the first ``q`` steps (where
 the information state still holds the history before ``t = 0``) and over the rest,
-and the costs after the first accepted step with its step size.
+the cost of each ``k`` as a full step without feedback (``u = k`` from the zero
+controls), and the costs after each solver's first accepted step (with its own
+feedback) and its step size.
 
     python benchmarks/basins.py                 # the --compare runs (about 3 min on 2 cores)
     python benchmarks/basins.py --seeds 3       # and three more POD-iLQR seeds per task (about 7 min)
@@ -193,8 +195,12 @@ def first_step(path: str) -> str:
     def rel(a, b):
         return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))
 
+    def open_loop(k):  # the cost of u = 0 + k, no feedback: the first nominal a solve from u_init = k measures
+        return pj.solve_model_based(env, pj.default_config(env, max_iterations=1), u_init=k).cost_history[0]
+
     return (
         f"| {stem(path)} | {q} | {rel(k_pod[:q], k_ref[:q]):.3g} | {rel(k_pod[q:], k_ref[q:]):.3g} | "
+        f"{open_loop(k_pod):.6g} / {open_loop(k_ref):.6g} | "
         f"{pod.cost_history[-1]:.6g} (alpha {pod.alpha_history[-1]:g}) | "
         f"{ref.cost_history[-1]:.6g} (alpha {ref.alpha_history[-1]:g}) |"
     )
@@ -215,8 +221,11 @@ def main(argv=None) -> int:
         wanted = set(args.only.split(","))
         paths = [p for p in paths if stem(p) in wanted]
     if args.first_step:
-        print("| task | q | k, first q steps | k, the rest | POD-iLQR after step 1 | model-based after step 1 |")
-        print("|---|---|---|---|---|---|")
+        print(
+            "| task | q | k, first q steps | k, the rest | full step open loop, POD-iLQR's / the reference's k "
+            "| POD-iLQR after step 1 | model-based after step 1 |"
+        )
+        print("|---|---|---|---|---|---|---|")
         for path in paths:
             print(first_step(path), flush=True)
         return 0
