@@ -30,7 +30,7 @@ feedback) and its step size.
     python benchmarks/basins.py --seeds 3       # and three more POD-iLQR seeds per task (about 7 min)
     python benchmarks/basins.py --seeds 3 --starts 3   # and both solvers from 3 other first guesses
     python benchmarks/basins.py --table-only    # print the table from runs/basins/
-    python benchmarks/basins.py --first-step    # the first steps side by side (about 2 min)
+    python benchmarks/basins.py --first-step    # the first steps side by side (under a minute)
 
 Results go to runs/basins/STEM/seedS.json (seed 0: the ``--compare`` run),
 startJ.json (the costs from first guess J) and log.txt.

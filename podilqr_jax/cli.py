@@ -453,14 +453,18 @@ BASIN_RATIO = 0.01
 
 def _apart(ratio: float, gap: dict, both_converged: bool) -> str:
     """The line `--compare` prints when the two solvers' costs differ by more than BASIN_RATIO:
-    where their trajectories part most, and whether both converged (two local minima)."""
+    where their trajectories part most, and whether both converged (two local minima, and
+    then that other starts may find others: docs/robustness.md, "Basins on multi-modal tasks")."""
     which = "above" if ratio > 1 else "below"
-    return (
+    text = (
         f"POD-iLQR ends {abs(ratio - 1):.1%} {which} the model-based solve"
         f"{', both converged: two local minima (basins)' if both_converged else ''}; their trajectories are "
         f"farthest apart in {gap['state']} at step {gap['step']} (POD-iLQR {gap['this']:.4g}, "
         f"model-based {gap['other']:.4g})"
     )
+    if both_converged:
+        text += "; other starts may end in other basins, lower ones too: try `--set seed=N` (other sysid draws)"
+    return text
 
 
 def _solve_animation(result, env, path: str) -> str:
