@@ -17,7 +17,7 @@ One adjustment before pdoc runs: the ``__new__`` that ``typing.NamedTuple``
 generates belongs to no module, so pdoc cannot resolve its string annotations
 (``"jnp.ndarray"``, under ``from __future__ import annotations``) and would print
 them as ``ForwardRef(...)``; each public NamedTuple's ``__new__`` is given its
-class's module.
+class's module while pdoc runs.
 """
 
 from __future__ import annotations
@@ -40,12 +40,17 @@ def build(output: Path) -> None:
 
     import podilqr_jax
 
-    for name in podilqr_jax.__all__:
-        obj = getattr(podilqr_jax, name)
-        if isinstance(obj, type) and issubclass(obj, tuple) and hasattr(obj, "_fields"):
-            obj.__new__.__module__ = obj.__module__
-    pdoc.render.configure(docformat="google", show_source=False, search=False)
-    pdoc.pdoc("podilqr_jax", output_directory=output)
+    named_tuples = [getattr(podilqr_jax, name) for name in podilqr_jax.__all__]
+    named_tuples = [c for c in named_tuples if isinstance(c, type) and issubclass(c, tuple) and hasattr(c, "_fields")]
+    before = [c.__new__.__module__ for c in named_tuples]
+    try:
+        for cls in named_tuples:
+            cls.__new__.__module__ = cls.__module__
+        pdoc.render.configure(docformat="google", show_source=False, search=False)
+        pdoc.pdoc("podilqr_jax", output_directory=output)
+    finally:  # the classes as they were, for whatever else runs in this process (the test suite)
+        for cls, module in zip(named_tuples, before, strict=True):
+            cls.__new__.__module__ = module
 
 
 def check(expected: Path = OUTPUT) -> str | None:
