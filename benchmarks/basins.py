@@ -11,6 +11,9 @@ in ``benchmarks/untuned_suite.py``, no solver setting in any. For each task:
 - with ``--starts N``, both solvers from N other first guesses: zero controls plus
   Gaussian noise of 0.3 times the control range's half-width (1 where an actuator is
   not limited), clipped to the range, drawn with ``numpy.random.default_rng(j)``;
+- with ``--restarts K``, ``podilqr solve FILE --restarts K``: POD-iLQR from K first
+  guesses in one batch (``restarts``: the zero controls and K - 1 perturbed ones,
+  seeds 0..K-1), keeping the lowest;
 
 and the table gives the default POD-iLQR cost over the reference's, the best cost
 any run reached, and where the two solvers part: the first iteration at which their
@@ -29,11 +32,13 @@ feedback) and its step size.
     python benchmarks/basins.py                 # the --compare runs (about 3 min on 2 cores)
     python benchmarks/basins.py --seeds 3       # and three more POD-iLQR seeds per task (about 7 min)
     python benchmarks/basins.py --seeds 3 --starts 3   # and both solvers from 3 other first guesses
+    python benchmarks/basins.py --restarts 8    # and POD-iLQR with 8 starts in one batch
+    python benchmarks/basins.py --restarts 8 --restarts-only   # only those, the other runs as saved
     python benchmarks/basins.py --table-only    # print the table from runs/basins/
     python benchmarks/basins.py --first-step    # the first steps side by side (under a minute)
 
 Results go to runs/basins/STEM/seedS.json (seed 0: the ``--compare`` run),
-startJ.json (the costs from first guess J) and log.txt.
+startJ.json (the costs from first guess J), restartsK.json and log.txt.
 """
 
 from __future__ import annotations
@@ -56,19 +61,30 @@ def stem(path: str) -> str:
     return os.path.splitext(os.path.basename(path))[0]
 
 
-def run_one(path: str, seed: int, out_dir: str, timeout: float) -> str:
+def _solve_cli(path: str, name: str, options: list[str], out_dir: str, timeout: float) -> str:
+    """``podilqr solve FILE OPTIONS`` in a fresh process: runs/basins/STEM/NAME.json (log.txt beside it)."""
     folder = os.path.join(out_dir, stem(path))
     os.makedirs(folder, exist_ok=True)
-    out = os.path.join(folder, f"seed{seed}.json")
-    cmd = [sys.executable, "-m", "podilqr_jax.cli", "solve", path, "--quiet", "--no-plots", "--out", out]
-    cmd += ["--compare"] if seed == 0 else ["--set", f"seed={seed}"]
+    out = os.path.join(folder, f"{name}.json")
+    cmd = [sys.executable, "-m", "podilqr_jax.cli", "solve", path, "--quiet", "--no-plots", "--out", out, *options]
     t0 = time.perf_counter()
     with open(os.path.join(folder, "log.txt"), "a") as log:
         try:
             rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, timeout=timeout).returncode
         except subprocess.TimeoutExpired:
             rc = "timeout"
-    return f"{stem(path)} seed {seed}: exit {rc} in {time.perf_counter() - t0:.0f} s"
+    return f"{stem(path)} {name}: exit {rc} in {time.perf_counter() - t0:.0f} s"
+
+
+def run_one(path: str, seed: int, out_dir: str, timeout: float) -> str:
+    """The ``--compare`` run (seed 0) or POD-iLQR with another seed: seedS.json."""
+    options = ["--compare"] if seed == 0 else ["--set", f"seed={seed}"]
+    return _solve_cli(path, f"seed{seed}", options, out_dir, timeout)
+
+
+def run_restarts(path: str, k: int, out_dir: str, timeout: float) -> str:
+    """``podilqr solve FILE --restarts K``: restartsK.json."""
+    return _solve_cli(path, f"restarts{k}", ["--restarts", str(k)], out_dir, timeout)
 
 
 START = """
@@ -142,6 +158,10 @@ def row(path: str, out_dir: str) -> dict | None:
         if (other := _load(f)) is not None:
             starts[int(os.path.basename(f)[5:-5])] = (other["pod"]["cost"], other["ref"]["cost"])
     known = [c for pair in starts.values() for c in pair]
+    restarts = {}
+    for f in sorted(glob.glob(os.path.join(out_dir, name, "restarts*.json"))):
+        if (other := _load(f)) is not None:
+            restarts[int(os.path.basename(f)[8:-5])] = (other["final_cost"], other["best_start"], other["wall_s"])
     pairs = zip(first["states"], ref["states"], strict=True)
     gap = max(abs(a - b) for xs, ys in pairs for a, b in zip(xs, ys, strict=True))
     return {
@@ -155,7 +175,8 @@ def row(path: str, out_dir: str) -> dict | None:
         "ratio": first["final_cost"] / ref["final_cost"],
         "seeds": seeds,
         "starts": starts,
-        "best": min([*seeds.values(), ref["final_cost"], *known]),
+        "restarts": restarts,
+        "best": min([*seeds.values(), ref["final_cost"], *known, *(c for c, _, _ in restarts.values())]),
         "part": parting(first["cost_history"], ref["cost_history"]),
         "state_gap": gap,
     }
@@ -164,17 +185,24 @@ def row(path: str, out_dir: str) -> dict | None:
 def table(rows: list[dict]) -> str:
     lines = [
         "| task | POD-iLQR (defaults) | model-based | ratio | POD-iLQR, seeds 0.. | other first guesses, "
-        "POD-iLQR / model-based | best known | part at | state gap |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "POD-iLQR / model-based | POD-iLQR, restarts = K: cost (best start, s) | best known | part at | state gap |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         seeds = ", ".join(f"{c:.6g}" for _, c in sorted(r["seeds"].items()))
         starts = ", ".join(f"{a:.6g} / {b:.6g}" for _, (a, b) in sorted(r["starts"].items())) or "-"
+        restarts = (
+            "; ".join(
+                f"K = {k}: {c:.6g} (start {j}, {w:.0f} s){' = best' if c <= r['best'] * (1 + 1e-4) else ''}"
+                for k, (c, j, w) in sorted(r["restarts"].items())
+            )
+            or "-"
+        )
         part = "never" if r["part"] is None else str(r["part"])
         lines.append(
             f"| {r['task']} | {r['pod']:.6g} ({r['pod_status']}, {r['pod_iterations']}) | "
             f"{r['ref']:.6g} ({r['ref_status']}, {r['ref_iterations']}) | {r['ratio']:.4f} | {seeds} | {starts} | "
-            f"{r['best']:.6g} | {part} | {r['state_gap']:.3g} |"
+            f"{restarts} | {r['best']:.6g} | {part} | {r['state_gap']:.3g} |"
         )
     return "\n".join(lines)
 
@@ -210,6 +238,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=0, help="POD-iLQR runs with seeds 1..N besides the --compare run")
     p.add_argument("--starts", type=int, default=0, help="both solvers from N other first guesses")
+    p.add_argument("--restarts", type=int, default=0, help="POD-iLQR with K starts in one batch (--restarts K)")
+    p.add_argument("--restarts-only", action="store_true", help="run only the --restarts solves (the rest as saved)")
     p.add_argument("--only", default="", help="comma-separated task stems")
     p.add_argument("--out", default=OUT, help="results folder (default runs/basins)")
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per run")
@@ -231,10 +261,12 @@ def main(argv=None) -> int:
         return 0
     if not args.table_only:
         for path in paths:
-            for seed in range(args.seeds + 1):
+            for seed in range(0 if args.restarts_only else args.seeds + 1):
                 print(run_one(path, seed, args.out, args.timeout), flush=True)
-            for j in range(1, args.starts + 1):
+            for j in range(1, 1 if args.restarts_only else args.starts + 1):
                 print(run_start(path, j, args.out, args.timeout), flush=True)
+            if args.restarts:
+                print(run_restarts(path, args.restarts, args.out, args.timeout), flush=True)
     rows = [r for r in (row(path, args.out) for path in paths) if r is not None]
     print(table(rows))
     return 0

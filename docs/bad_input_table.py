@@ -128,6 +128,8 @@ CASES = (
     ),
     Case("A solver setting of the wrong type", SOLVE + ("--set", "sigma=abc")),
     Case("An unknown engine", SOLVE + ("--set", "engine=gpu")),
+    Case("`--restarts` 0", SOLVE + ("--restarts", "0")),
+    Case("`--restarts` resuming a folder written without restarts", SOLVE + ("--restarts", "2", "--resume", "{dir}")),
     Case(
         "Exact Jacobians asked of the native engine",
         SOLVE + ("--method", "model-based", "--set", "engine=native", "--set", "jacobian=exact"),

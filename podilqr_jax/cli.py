@@ -93,6 +93,14 @@ def _parser() -> argparse.ArgumentParser:
         help="system noise: `paper` (s0=0.01, 10%% process/measurement noise), `none`, or "
         "initial=S0,process=SW,measurement=SV (standard deviations); pick the algorithm with --set variant=...",
     )
+    p.add_argument(
+        "--restarts",
+        type=int,
+        default=None,
+        metavar="K",
+        help="solve from K first guesses at once (one batch per stage) and keep the lowest cost "
+        "(the setting `restarts`; checkpoints go to DIR/startJ)",
+    )
     p.add_argument("--out", default="result.json", help="JSON result path (plots are written beside it)")
     p.add_argument(
         "--checkpoint",
@@ -383,6 +391,8 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
     horizon = sets.pop("horizon", None)
     if horizon is not None:
         env = env.replace(horizon=horizon)
+    if args.restarts is not None:
+        sets["restarts"] = args.restarts
     cfg = pj.default_config(env, **sets)
 
     runs = [args.method] + (["model-based"] if args.compare and args.method != "model-based" else [])
@@ -394,7 +404,7 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
         options = {}
         if i == 0:  # checkpoints and resume belong to the main solve
             options = dict(checkpoint=args.checkpoint, checkpoint_every=args.every, resume=args.resume)
-        with _Progress(method, env.name, cfg.max_iterations, quiet=args.quiet) as progress:
+        with _Progress(method, env.name, cfg.max_iterations, quiet=args.quiet, starts=cfg.restarts) as progress:
             results.append(fn(env, cfg, callback=progress.update, **options))
         print(results[-1].summary(), file=sys.stderr)
         if results[-1].status == pj.Status.INTERRUPTED or interrupts.requested:
@@ -482,13 +492,15 @@ def _solve_animation(result, env, path: str) -> str:
 class _Progress:
     """Live progress: a rich bar on a terminal, a line every 10 iterations otherwise."""
 
-    def __init__(self, method: str, task: str, total: int, quiet: bool) -> None:
+    def __init__(self, method: str, task: str, total: int, quiet: bool, starts: int = 1) -> None:
         from rich.console import Console
 
         self.console = Console(stderr=True)
         self.quiet = quiet
         self.method, self.task, self.total = method, task, total
         self.bar = None
+        self.bar_ids: dict[int, Any] = {}  # a bar per start (``restarts``)
+        self.starts = starts
 
     def __enter__(self) -> "_Progress":
         if not self.quiet and self.console.is_terminal:
@@ -502,7 +514,6 @@ class _Progress:
                 console=self.console,
             )
             self.bar.start()
-            self.bar_id = self.bar.add_task(f"{self.method} {self.task}", total=self.total, stats="")
         return self
 
     def update(self, info) -> None:
@@ -518,10 +529,13 @@ class _Progress:
             stats += f"  true {info.true_cost:10.6g}"
         if info.note:
             stats += f"  ({info.note})"
+        name = f"{self.method} {self.task}" + (f" start {info.start}" if self.starts > 1 else "")
         if self.bar is not None:
-            self.bar.update(self.bar_id, completed=info.iteration, stats=stats)
+            if info.start not in self.bar_ids:
+                self.bar_ids[info.start] = self.bar.add_task(name, total=self.total, stats="")
+            self.bar.update(self.bar_ids[info.start], completed=info.iteration, stats=stats)
         elif info.iteration == 1 or info.iteration % 10 == 0 or info.note:
-            self.console.print(f"{self.method} {self.task}: {stats}", highlight=False, soft_wrap=True)
+            self.console.print(f"{name}: {stats}", highlight=False, soft_wrap=True)
 
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:

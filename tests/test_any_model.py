@@ -2,6 +2,7 @@
 
 import itertools
 import math
+import os
 
 import jax
 import jax.numpy as jnp
@@ -222,3 +223,18 @@ def test_line_search_rejects_divergent_candidates():
     costs = np.asarray(ls.costs)
     assert not np.isfinite(costs[:4]).any() and np.isfinite(costs[4])
     assert not bool(ls.accepted)
+
+
+def test_make_task_reads_a_task_file_as_its_message_says(tmp_path):
+    """``make_task``'s error names task files; a path is one (the bundled tasks' noise and horizon too)."""
+    path = os.path.join(
+        os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+        "examples",
+        "tasks",
+        "basins",
+        "gym_inverted_pendulum_tilted.toml",
+    )
+    env = pj.make_task(path, horizon=20, noise="paper")
+    assert env.dims.horizon == 20 and env.noisy and env.name == "gym-inverted-pendulum-tilted"
+    with pytest.raises(pj.TaskError, match="does not exist"):
+        pj.make_task(str(tmp_path / "none.toml"))

@@ -21,6 +21,10 @@ jaxlib and MuJoCo versions, x64, the backend, the static arguments, the
 pytree structure of the traced ones (with their static fields: MJX's model
 options, joint types and sizes) and their shapes and dtypes.
 
+Inside a lockstep group (``lockstep``: the solves of ``restarts``, one per
+thread) a stage call waits for the other solves' calls and runs with them as
+one ``vmap`` of the stage (a plain jit, not kept on disk).
+
 Inside the driver's dry run (``ahead``) a stage call is lowered along the
 same path, compiled in a thread and answered with zeros of its output's
 shapes, so the real call that follows finds its executable compiled.
@@ -48,7 +52,7 @@ import jax
 import numpy as np
 
 from ..atomic import write_atomic
-from . import ahead, cache, xla_options
+from . import ahead, cache, lockstep, xla_options
 
 FOLDER_NAME = "podilqr-stages"
 fallbacks: dict[str, str] = {}  # stage name -> why it runs as a plain jit (the last refusal)
@@ -138,13 +142,24 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
                 return jitted.top(), args, kwargs
             return runner, tuple(leaves), {}
 
-        @functools.wraps(fun)
-        def call(*args, **kwargs):
+        def alone(args, kwargs):
             fn, a, kw = target(args, kwargs)
             dry = ahead.current()
             if dry is not None and fn is not jitted.plain:
                 return dry.submit(name, fn, a, kw)  # lowered now, compiled beside the rest (``ahead``)
             return fn(*a, **kw)
+
+        @functools.wraps(fun)
+        def call(*args, **kwargs):
+            member = lockstep.current()
+            if member is not None:  # one of several solves in lockstep (``lockstep``): batched with theirs
+                bound = signature.bind(*args, **kwargs)
+                bound.apply_defaults()
+                static = {k: bound.arguments[k] for k in static_argnames}
+                traced = {k: v for k, v in bound.arguments.items() if k not in static_argnames}
+                if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(traced)):
+                    return member.submit(name, fun, static, traced, lambda: alone(args, kwargs))
+            return alone(args, kwargs)
 
         call.lower = jitted.lower  # the plain jit's (memory analysis, ``bench.line_search_memory``)
         return call

@@ -47,7 +47,7 @@ _FORMAT_2_NAMES = {
 _RESUMABLE_CHANGES = ("max_iterations",)
 # Settings added after format 3, left out of the fingerprint at their default,
 # so that a checkpoint written before they existed still resumes.
-_LATER_DEFAULTS = {"jacobian": "auto", "engine": "auto"}
+_LATER_DEFAULTS = {"jacobian": "auto", "engine": "auto", "restarts": 1, "restart_scale": 0.3}
 
 
 def fingerprint(method: str, env, dims, cfg) -> dict[str, Any]:

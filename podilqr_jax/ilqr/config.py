@@ -94,6 +94,14 @@ class ILQRSettings:
         fraction of the predicted one (and strictly positive).
       seed: PRNG seed of the perturbations and of the noise (same seed, same
         result).
+      restarts: solve from this many first guesses at once and return the
+        lowest cost (``ilqr.restarts``): start 0 from the given controls
+        with ``seed``, start j from them plus Gaussian noise of
+        ``restart_scale`` times each actuator's half ctrlrange (1 where it is
+        unlimited), clipped to the range, with ``seed + j``. The starts run
+        in lockstep, each stage of theirs one batched call
+        (``compilation.lockstep``); every start's cost is in ``Result.starts``.
+      restart_scale: the size of the other starts' perturbation, above.
     """
 
     max_iterations: int = 300
@@ -106,12 +114,16 @@ class ILQRSettings:
     n_alphas: int = 10
     accept_ratio: float = 1e-4
     seed: int = 0
+    restarts: int = 1
+    restart_scale: float = 0.3
 
     def validate(self) -> None:
         """Raise a ``ConfigError`` for the first of this group's settings out of its range, saying what it takes."""
         check_int("max_iterations", self.max_iterations, 1)
         check_int("n_alphas", self.n_alphas, 1)
         check_int("seed", self.seed, 0)
+        check_int("restarts", self.restarts, 1)
+        check_nonnegative("restart_scale", self.restart_scale)
         for name in ("mu_max", "mu_factor"):
             _positive(name, getattr(self, name))
         for name in ("rtol", "gtol", "mu_init", "mu_min", "accept_ratio"):
@@ -303,8 +315,9 @@ class ExecutionSettings:
       memory_budget_mb: the sysid batch (n_s x n_avg rollouts) and the line
         search's ((n_alphas + 1) x n_forward under noise) run in chunks that
         fit this budget (``rollout.bytes_per_rollout`` estimates a rollout's
-        share); a batch that fits runs at once.
-      rollout_chunk: rollouts per chunk (of both batches), overriding the budget.
+        share); a batch that fits runs at once. With ``restarts`` the starts'
+        batches run together and share it.
+      rollout_chunk: rollouts per chunk (of both batches, per start), overriding the budget.
     """
 
     engine: str = "auto"

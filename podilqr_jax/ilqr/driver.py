@@ -92,6 +92,7 @@ class Context:
     hold: Step  # the step that changes nothing (k = 0): a measurement of the policy as it is
     fingerprint: dict
     units: list  # sigma's unit per actuator (reported in the result)
+    start: int = 0  # which start of a solve with restarts (``restarts``)
 
     @property
     def data_based(self) -> bool:
@@ -407,10 +408,17 @@ def experiments_tried(st: SolverState, cfg: SolverConfig) -> list[str]:
 
 def run(ctx: Context, u_init, callback: Optional[Callback], options: RunOptions) -> Result:
     """``init``, then ``step`` until a rule stops the solve, then ``terminate``."""
+    with deferred_interrupts as interrupts:
+        return run_within(ctx, u_init, callback, options, interrupts)
+
+
+def run_within(ctx: Context, u_init, callback: Optional[Callback], options: RunOptions, interrupts) -> Result:
+    """:func:`run` inside an entered ``deferred_interrupts`` (``interrupts``), in
+    any thread: the restarts run one per thread (``restarts``)."""
     t_start = time.perf_counter()
     timing = Timing()
     total_watch = CompileWatch()
-    with total_watch, deferred_interrupts as interrupts:
+    with total_watch:
         st = init(ctx, timing, u_init, options.resume)
         stop = stopping.initial_stop(st.nominal.cost) or stopping.resumed_stop(st.stopped)
         if stop is None:
@@ -445,7 +453,7 @@ def _loop(ctx: Context, st: SolverState, timing: Timing, callback, options: RunO
             if options.checkpoint is not None and (iteration % options.every == 0 or final):
                 save_checkpoint(options.checkpoint, st, ctx.fingerprint)
             if callback is not None:
-                callback(_info(st, iteration, outcome, time.perf_counter() - t_iter, ctx.dims.engine))
+                callback(_info(st, iteration, outcome, time.perf_counter() - t_iter, ctx))
             if outcome.stop is not None:
                 return st, outcome.stop
     except KeyboardInterrupt:
@@ -456,7 +464,7 @@ def _loop(ctx: Context, st: SolverState, timing: Timing, callback, options: RunO
     return st, stopping.iterations_stop(cfg, ctx.noisy)
 
 
-def _info(st: SolverState, iteration: int, outcome: Outcome, wall: float, engine: str) -> IterationInfo:
+def _info(st: SolverState, iteration: int, outcome: Outcome, wall: float, ctx: Context) -> IterationInfo:
     record = st.record
     return IterationInfo(
         iteration=iteration,
@@ -471,7 +479,8 @@ def _info(st: SolverState, iteration: int, outcome: Outcome, wall: float, engine
         true_cost=record.true_cost_history[-1],
         note=outcome.note,
         sigma=record.sigma_history[-1] if record.sigma_history else float("nan"),
-        engine=engine,
+        engine=ctx.dims.engine,
+        start=ctx.start,
     )
 
 

@@ -23,7 +23,10 @@ solve runs it on this machine:
 - ``xla_options``, ``cache``, ``x64``: what the package compiles with
   (``compilation.xla_options``), the persistent compilation cache's state
   (``compilation.cache``: on, read, off, or the user's own JAX cache) and the float
-  width.
+  width;
+- ``starts``: the solves of a solve with restarts that run in lockstep, each
+  stage one batched call (``restarts``, ``compilation.lockstep``; the compile
+  ahead is then off).
 
 ``solver`` builds it from the model, the settings and the machine (and the
 environment switches of docs/environment.md, read there once); the
@@ -63,6 +66,7 @@ class ExecutionPlan:
     xla_options: tuple[tuple[str, Any], ...]
     cache: str
     x64: bool
+    starts: int = 1  # solves run in lockstep, each stage one batched call (``restarts``; 1: none)
 
     def as_dict(self) -> dict[str, Any]:
         """The plan as JSON values (``Result.plan``)."""

@@ -46,6 +46,7 @@ class IterationInfo:
     note: str = ""  # what happened out of the ordinary (a retry, left-out rollouts)
     sigma: float = float("nan")  # the sysid scale of the iteration's identification (NaN: none, or model-based)
     engine: str = "mjx"  # the engine of the rollouts (``SolverConfig.engine``): mjx or native
+    start: int = 0  # which start of a solve with restarts (``SolverConfig.restarts``); 0 without
 
 
 @dataclasses.dataclass
@@ -100,6 +101,10 @@ class Result:
     open_loop: bool = False  # ... and open loop (variant plain, or a recovery switched to it)
     engine: str = "mjx"  # the engine that ran the rollouts (``SolverConfig.engine``): mjx or native
     plan: dict[str, Any] = dataclasses.field(default_factory=dict)  # how it ran (``ilqr.plan.ExecutionPlan``)
+    # with restarts (``SolverConfig.restarts``), every start's outcome (``ilqr.restarts.START_FIELDS``);
+    # this result is the start of ``best_start``; [] without restarts
+    starts: list = dataclasses.field(default_factory=list)
+    best_start: int = 0
 
     def __getattr__(self, name: str):
         """The record's counters and histories as attributes of the result."""
@@ -176,6 +181,15 @@ class Result:
                 f"{self.rejected_steps} rejected steps, longest streak {self.longest_rejection_streak}, "
                 f"nominal re-measured {self.remeasured} times"
             )
+        if len(self.starts) > 1:
+            key = "true_cost" if self.noisy else "cost"
+            costs = ", ".join(f"{s[key]:.6g} ({s['status']})" for s in self.starts)
+            text += f"; {len(self.starts)} starts, the best is start {self.best_start}; their costs: {costs}"
+            first, best = self.starts[0][key], self.starts[self.best_start][key]
+            if self.best_start != 0 and not first <= best * 1.01:  # also a NaN first
+                text += (
+                    f"; the first guess given (start 0) ended in a worse local minimum, {first / best:.3g}x the best"
+                )
         return text
 
     def to_dict(self) -> dict[str, Any]:
@@ -195,6 +209,8 @@ class Result:
             "open_loop": self.open_loop,
             "engine": self.engine,
             "plan": self.plan,
+            "starts": self.starts,
+            "best_start": self.best_start,
             "warnings": list(self.warnings),
             "control_limits": [[float(lo), float(hi)] for lo, hi in self.control_limits],
             "controls": self.controls.tolist(),

@@ -27,6 +27,7 @@ from ..identify.model_based import nonfinite_hint
 from ..sim import contacts, engines
 from ..sim.rollout import on_device
 from ..task.env import Env, mjx_model_of
+from . import restarts
 from .backward import QuadraticCost, Regularisation
 from .checkpoint import fingerprint
 from .config import GROUPS, SETTINGS, SolverConfig
@@ -93,7 +94,7 @@ def solve(
     plan = _plan(dims, data, cfg, noisy, n_fwd, sysid_rollouts=cfg.n_s * cfg.resolved_n_avg())
     identify = data_based(env, cfg, q, data, noisy, plan.sysid_chunk)
     ctx = _context("pod-ilqr", env, dims, data, cfg, q, identify, noisy, n_fwd, plan)
-    return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
+    return _run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
 
 
 def solve_model_based(
@@ -132,14 +133,21 @@ def solve_model_based(
     plan = _plan(dims, data, cfg, False, 1, jacobian=jacobian)
     identify = Exact(dims, data, nonfinite_hint(env.mj_model), plan.jacobian)
     ctx = _context("model-based", env, dims, data, cfg, 1, identify, False, 1, plan)
-    return run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
+    return _run(ctx, _first_controls(u_init, dims, run_options), callback, run_options)
+
+
+def _run(ctx: Context, u_init, callback, run_options: RunOptions) -> Result:
+    """One solve, or with ``restarts`` > 1 several in lockstep (``restarts``)."""
+    return (restarts.run if ctx.cfg.restarts > 1 else run)(ctx, u_init, callback, run_options)
 
 
 def _plan(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int, sysid_rollouts: int = 0, jacobian: str = ""):
     """How the solve runs (``plan``): its engine, batches and chunks under the
-    memory budget, and the machine's part; ``sysid_rollouts`` 0 and a
+    memory budget (shared by the starts of ``restarts``), and the machine's part; ``sysid_rollouts`` 0 and a
     ``jacobian`` for the model-based reference."""
     ls_rollouts = len(_step_candidates(cfg, noisy)) * n_fwd
+    if cfg.restarts > 1:  # the starts' batches run side by side (``restarts``): the budget is shared
+        cfg = cfg.replace(memory_budget_mb=cfg.memory_budget_mb / cfg.restarts)
     return build_plan(
         engine=dims.engine,
         impl=cfg.impl,

@@ -90,14 +90,26 @@ PAPER_S0 = 0.01
 
 
 def make_task(name: str, *, horizon: int | None = None, noise: Any = None) -> Env:
-    """A bundled task by name, e.g. ``"cartpole-partial"`` (see ``TASKS``).
+    """A bundled task by name, e.g. ``"cartpole-partial"`` (see ``TASKS``), or
+    the task file at a path ending in ``.toml`` or ``.json`` (docs/task_files.md).
 
-    ``horizon``: control steps (default: the task's, 30 or 20).
+    ``horizon``: control steps (default: the task's; 30 or 20 for the bundled ones).
     ``noise``: None (deterministic), ``"paper"`` (the paper's noise for this
     observation, see the module docstring), a :class:`NoiseModel` or a mapping
     of its fields. With noise the task's solver defaults are its noisy ones
     (the double pendulum has none measured: it keeps its noiseless ones).
     """
+    if str(name).endswith((".toml", ".json")):  # a task file (docs/task_files.md)
+        from .taskfile import load_task
+
+        env = load_task(name)
+        if horizon is not None:
+            env = env.replace(horizon=horizon)
+        if isinstance(noise, str) and noise != "paper":
+            raise TaskError(f"Unknown noise preset {noise!r}; use 'paper', a NoiseModel or a mapping.")
+        if noise == "paper":  # the paper's levels, as for a bundled task (measurement noise where observed in part)
+            noise = NoiseModel.paper(PAPER_S0, partial=not env.fully_observed)
+        return env if noise is None else env.replace(noise=NoiseModel.from_any(noise))
     system, _, obs = name.partition("-")
     if system not in _SYSTEMS or obs not in _SYSTEMS[system]["observations"]:
         raise TaskError(

@@ -1,0 +1,92 @@
+"""Several starts in one batch (``restarts``): the best start, every start's cost, lockstep batches."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import podilqr_jax as pj
+from podilqr_jax.cli import main
+from podilqr_jax.compilation import lockstep
+from podilqr_jax.ilqr.restarts import first_guesses
+
+ENV = pj.make_task("pendulum-partial").replace(horizon=10)
+CFG = pj.default_config(ENV, max_iterations=4)
+K = 3
+
+
+@pytest.fixture(scope="module")
+def restarted():
+    """A solve with K restarts, and the lockstep group it ran in."""
+    groups = []
+
+    class Recording(lockstep.Group):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            groups.append(self)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(lockstep, "Group", Recording)
+        result = pj.solve(ENV, CFG.replace(restarts=K))
+    return result, groups[0]
+
+
+def test_restarts_return_the_lowest_start_and_every_starts_cost(restarted):
+    result, group = restarted
+    assert [s["start"] for s in result.starts] == list(range(K))
+    assert [s["seed"] for s in result.starts] == list(range(K))
+    costs = [s["cost"] for s in result.starts]
+    assert len(set(costs)) == K  # other first guesses, other runs
+    assert result.best_start == int(np.argmin(costs)) and result.final_cost == min(costs)
+    assert result.plan["starts"] == K and result.plan["compile_ahead"] == 0
+    assert group.batches.get(K, 0) >= 4 * CFG.max_iterations  # the stages of all starts ran as batches of K
+    assert f"{K} starts, the best is start {result.best_start}" in result.summary()
+    again = pj.Result.from_dict(json.loads(json.dumps(result.to_dict())))
+    assert again.starts == result.starts and again.best_start == result.best_start
+
+
+def test_a_start_is_the_solve_from_its_first_guess_and_seed(restarted):
+    """Start j of the batch runs what a solve of its own from the same first
+    guess and seed runs: the same iterations, the costs to round-off (a batched
+    program adds in another order)."""
+    result, _ = restarted
+    j = result.best_start
+    guess = first_guesses(CFG, ENV.data.u_low, ENV.data.u_high, np.zeros((ENV.dims.horizon, ENV.dims.nu)), K)[j]
+    alone = pj.solve(ENV, CFG.replace(seed=j), u_init=np.asarray(guess))
+    assert alone.iterations == result.iterations and str(alone.status) == str(result.status)
+    np.testing.assert_allclose(result.cost_history, alone.cost_history, rtol=1e-9)
+    np.testing.assert_allclose(result.controls, alone.controls, rtol=1e-7, atol=1e-9)
+
+
+def test_restarts_are_deterministic(restarted):
+    result, _ = restarted
+    again = pj.solve(ENV, CFG.replace(restarts=K))
+    assert again.starts == [dict(s, wall_s=t["wall_s"]) for s, t in zip(result.starts, again.starts, strict=True)]
+    assert np.array_equal(again.controls, result.controls)
+
+
+@pytest.mark.parametrize("setting, value", [("restarts", 0), ("restarts", 1.5), ("restart_scale", -0.1)])
+def test_bad_restart_settings_are_refused(setting, value):
+    with pytest.raises(pj.ConfigError, match=f"`{setting}`"):
+        pj.solve(ENV, CFG.replace(**{setting: value}))
+
+
+def test_cli_restarts_checkpoint_per_start_and_resume(tmp_path, capsys, restarted):
+    """``--restarts``: every start in the JSON, a checkpoint folder per start, and a
+    resumed solve that ends where the uninterrupted one did."""
+    result, _ = restarted
+    out, ckpt = tmp_path / "r.json", tmp_path / "ckpt"
+    common = ["solve", "pendulum-partial", "--restarts", str(K), "--set", "horizon=10", "--no-plots"]
+    assert main(common + ["--set", "max_iterations=2", "--checkpoint", str(ckpt), "--out", str(out)]) == 0
+    assert sorted(p.name for p in ckpt.iterdir()) == [f"start{j}" for j in range(K)]
+    assert all((ckpt / f"start{j}" / "checkpoint.npz").is_file() for j in range(K))
+    assert f"{K} starts" in capsys.readouterr().err
+    assert main(common + ["--set", "max_iterations=4", "--resume", str(ckpt), "--out", str(out)]) == 0
+    payload = json.loads(out.read_text())
+    assert [s["iterations"] for s in payload["starts"]] == [s["iterations"] for s in result.starts]
+    np.testing.assert_allclose([s["cost"] for s in payload["starts"]], [s["cost"] for s in result.starts], rtol=1e-9)
+    capsys.readouterr()
+    assert main(common + ["--restarts", str(K + 1), "--resume", str(ckpt), "--out", str(out)]) == 2
+    assert f"holds no 'start{K}'" in capsys.readouterr().err
