@@ -457,7 +457,8 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
     return 1 if main_result.status in (pj.Status.NONFINITE, pj.Status.NO_RESPONSE) else 0
 
 
-# Noiseless costs further apart than this (relative) are not one optimum reached twice.
+# Noiseless costs further apart than this (relative) are not one optimum reached twice
+# (``ilqr.result.BASIN_RATIO``, kept here so that the CLI's parser loads no JAX).
 BASIN_RATIO = 0.01
 
 

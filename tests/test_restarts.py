@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
 import podilqr_jax as pj
+from podilqr_jax import cli
 from podilqr_jax.cli import main
 from podilqr_jax.compilation import lockstep
 from podilqr_jax.ilqr.restarts import first_guesses
+from podilqr_jax.ilqr.result import BASIN_RATIO
 
 ENV = pj.make_task("pendulum-partial").replace(horizon=10)
 CFG = pj.default_config(ENV, max_iterations=4)
@@ -90,3 +93,14 @@ def test_cli_restarts_checkpoint_per_start_and_resume(tmp_path, capsys, restarte
     capsys.readouterr()
     assert main(common + ["--restarts", str(K + 1), "--resume", str(ckpt), "--out", str(out)]) == 2
     assert f"holds no 'start{K}'" in capsys.readouterr().err
+
+
+def test_the_summary_says_when_the_first_guess_ended_in_a_worse_basin(restarted):
+    result, _ = restarted
+    starts = [dict(s) for s in result.starts]
+    starts[0]["cost"], starts[1]["cost"] = 2.0 * starts[1]["cost"], starts[1]["cost"]
+    worse = dataclasses.replace(result, starts=starts, best_start=1)
+    assert "the first guess given (start 0) ended in a worse local minimum, 2x the best" in worse.summary()
+    starts[0]["cost"] = starts[1]["cost"] * (1 + BASIN_RATIO / 2)  # within BASIN_RATIO: one basin
+    assert "worse local minimum" not in dataclasses.replace(result, starts=starts, best_start=1).summary()
+    assert cli.BASIN_RATIO == BASIN_RATIO  # --compare's threshold is the same

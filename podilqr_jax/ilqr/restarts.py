@@ -47,10 +47,7 @@ from ..sim.rollout import on_device
 from .checkpoint import fingerprint
 from .driver import Callback, Context, RunOptions, run_within
 from .interrupts import deferred_interrupts
-from .result import Result
-
-BASIN_RATIO = 0.01
-"""Final costs further apart than this (relative) are different local minima."""
+from .result import BASIN_RATIO, Result
 
 START_FIELDS = ("start", "seed", "cost", "true_cost", "status", "iterations", "rollouts", "wall_s")
 """What ``Result.starts`` holds for each start."""
@@ -165,10 +162,11 @@ def best_of(ctx: Context, ctxs: list[Context], results: list, wall: float, group
     warnings = list(r.warnings)
     if 0 in worse:
         first = results[0]
+        ratio = f"{_score(first) / floor:.3g}x " if floor > 0 else ""
         warnings.insert(
             0,
             f"the first guess given (start 0) ended at {_score(first):.6g} ({first.status}), "
-            f"{_score(first) / floor:.3g}x the best start's {floor:.6g} (start {best}): a worse local minimum",
+            f"{ratio}the best start's {floor:.6g} (start {best}): a worse local minimum",
         )
     elif worse:
         warnings.insert(0, f"{len(worse)} of {len(results)} starts ended more than {BASIN_RATIO:.0%} above the best")

@@ -29,6 +29,10 @@ class Status(str, enum.Enum):
         return self.value
 
 
+BASIN_RATIO = 0.01
+"""Final costs of one task further apart than this (relative) are different local minima."""
+
+
 @dataclasses.dataclass(frozen=True)
 class IterationInfo:
     """One row of the live report (handed to the ``callback`` of a solve)."""
@@ -185,11 +189,11 @@ class Result:
             key = "true_cost" if self.noisy else "cost"
             costs = ", ".join(f"{s[key]:.6g} ({s['status']})" for s in self.starts)
             text += f"; {len(self.starts)} starts, the best is start {self.best_start}; their costs: {costs}"
-            first, best = self.starts[0][key], self.starts[self.best_start][key]
-            if self.best_start != 0 and not first <= best * 1.01:  # also a NaN first
-                text += (
-                    f"; the first guess given (start 0) ended in a worse local minimum, {first / best:.3g}x the best"
-                )
+            by_start = {s["start"]: s[key] for s in self.starts}
+            first, best = by_start.get(0, math.nan), by_start[self.best_start]
+            if self.best_start != 0 and not first <= best * (1 + BASIN_RATIO):  # also a NaN first
+                ratio = f", {first / best:.3g}x the best" if best > 0 else ""
+                text += f"; the first guess given (start 0) ended in a worse local minimum{ratio}"
         return text
 
     def to_dict(self) -> dict[str, Any]:
