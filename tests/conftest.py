@@ -15,9 +15,9 @@ set before any test module imports the package and shared by the pytest-xdist
 workers: ``.test-cache/`` in the checkout (``TEST_CACHE``; ignored by git), kept
 between runs, so a module loads from disk what an earlier module or an earlier
 run already compiled, and the user's ~/.cache is left alone. Compiling is most of
-the suite's time: on 2 CPU cores a first run took 641-742 s (662 s and 742 s in a
-clean clone, as CI runs it) and the next one, with the cache kept, 209-225 s
-(benchmarks/README.md). A run gives the same results cold or warm: the cache
+the suite's time: on 2 CPU cores a first run takes 481-590 s (clean clones, as CI
+runs it, and this checkout with a new folder) and the next one, with the cache kept,
+209-245 s (benchmarks/README.md, "The test suite's time"). A run gives the same results cold or warm: the cache
 keys on everything a compiled program depends on (``compilation/cache.py``,
 ``compilation/stages.py``), and CI's clean clone always starts cold. The folder is emptied when it grows past
 ``TEST_CACHE_LIMIT_BYTES``; deleting it gives a cold run; ``PODILQR_CACHE=0``
