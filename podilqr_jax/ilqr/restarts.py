@@ -26,8 +26,10 @@ CPU one call per stage (the cores shared by the whole batch) instead of k.
 The compile ahead is off (the batched programs compile at their first call).
 
 Checkpoints: start j writes to and resumes from the subfolder ``startJ`` of
-the folder given. Ctrl-C (or a scheduler's stop) stops every start after its
-iteration in flight, as it stops one solve.
+the folder given. A resumed solve equals the uninterrupted one to round-off
+(bit for bit where the starts ran in lockstep: which calls share a batch after
+the resume can differ where they had drifted apart). Ctrl-C (or a scheduler's
+stop) stops every start after its iteration in flight, as it stops one solve.
 """
 
 from __future__ import annotations
