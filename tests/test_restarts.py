@@ -104,3 +104,18 @@ def test_the_summary_says_when_the_first_guess_ended_in_a_worse_basin(restarted)
     starts[0]["cost"] = starts[1]["cost"] * (1 + BASIN_RATIO / 2)  # within BASIN_RATIO: one basin
     assert "worse local minimum" not in dataclasses.replace(result, starts=starts, best_start=1).summary()
     assert cli.BASIN_RATIO == BASIN_RATIO  # --compare's threshold is the same
+
+
+def test_the_callers_own_first_guesses_are_the_starts(restarted):
+    """``u_init`` [K, T, nu]: K starts from those guesses; the K guesses of the
+    default restarts give the default restarts' result, bit for bit."""
+    result, _ = restarted
+    zero = np.zeros((ENV.dims.horizon, ENV.dims.nu))
+    guesses = np.stack([np.asarray(g) for g in first_guesses(CFG, ENV.data.u_low, ENV.data.u_high, zero, K)])
+    given = pj.solve(ENV, CFG, u_init=guesses)
+    assert given.starts == [dict(s, wall_s=t["wall_s"]) for s, t in zip(result.starts, given.starts, strict=True)]
+    assert np.array_equal(given.controls, result.controls)
+    with pytest.raises(pj.ConfigError, match="holds 3 first guesses"):
+        pj.solve(ENV, CFG.replace(restarts=2), u_init=guesses)
+    with pytest.raises(pj.ConfigError, match="K first guesses"):
+        pj.solve(ENV, CFG, u_init=guesses[:, :-1])

@@ -10,7 +10,8 @@ with several ways to catch the fall) another first guess may end far lower
 - start j from those controls plus Gaussian noise of ``restart_scale`` times
   each actuator's half ctrlrange (1 where it is unlimited), drawn with
   ``numpy.random.default_rng((seed, j))`` and clipped to the range, with
-  ``seed + j`` for its perturbations and noise,
+  ``seed + j`` for its perturbations and noise (or, where the caller gives K
+  first guesses, ``u_init`` [K, T, nu], start j from the j-th of them),
 
 and returns the result of the one that ends lowest (the noiseless
 closed-loop cost under noise), with every start's outcome in
@@ -57,9 +58,12 @@ START_FIELDS = ("start", "seed", "cost", "true_cost", "status", "iterations", "r
 
 def first_guesses(cfg, u_low, u_high, u_init, k: int) -> list:
     """The k first guesses of ``cfg`` (module docstring) about ``u_init`` [T, nu]
-    in the box [``u_low``, ``u_high``], on the device; None each when resuming."""
+    in the box [``u_low``, ``u_high``], on the device; the rows of ``u_init``
+    where it holds k guesses [k, T, nu] (the user's own); None each when resuming."""
     if u_init is None:
         return [None] * k
+    if u_init.ndim == 3:
+        return [on_device(row) for row in np.asarray(u_init)]  # rows on the host: no eager index to compile
     low, high = np.asarray(u_low, dtype=float), np.asarray(u_high, dtype=float)
     span = high - low
     half = np.where(np.isfinite(span) & (span > 0), span / 2, 1.0)

@@ -68,7 +68,9 @@ def solve(
     Args:
       env: the task (see :class:`Env`, :func:`make_task`).
       cfg: solver settings; default :func:`default_config` of the task.
-      u_init: initial nominal controls [T, nu]; default zeros.
+      u_init: initial nominal controls [T, nu]; default zeros. Or K first
+        guesses [K, T, nu]: K starts from them (``restarts``, which is then
+        K or left at 1).
       callback: called with an :class:`IterationInfo` after every iteration.
       checkpoint: a folder; the solver state is saved there (atomically, as
         ``checkpoint.npz``) every ``checkpoint_every`` iterations and when
@@ -83,7 +85,7 @@ def solve(
       lands in (a second Ctrl-C at once) and returns the result of the last
       completed iteration with status ``interrupted`` (see ``interrupts``).
     """
-    cfg = default_config(env) if cfg is None else cfg
+    cfg = _starts_of(u_init, default_config(env) if cfg is None else cfg)
     q = cfg.validate(env, data_based=True)
     cfg = cfg.replace(n_s=cfg.resolved_n_s(env))
     run_options = _run_options(checkpoint, checkpoint_every, resume)
@@ -118,7 +120,7 @@ def solve_model_based(
     keeps ``engine="auto"`` on MJX. The data-based settings (``q``, ``n_s``,
     ``sigma``) are unused.
     """
-    cfg = default_config(env) if cfg is None else cfg
+    cfg = _starts_of(u_init, default_config(env) if cfg is None else cfg)
     cfg.validate(env, data_based=False)
     cfg = cfg.replace(n_s=cfg.resolved_n_s(env))
     run_options = _run_options(checkpoint, checkpoint_every, resume)
@@ -232,12 +234,33 @@ def _first_controls(u_init, dims, run_options: RunOptions):
     return None if run_options.resume is not None else _initial_controls(u_init, dims)
 
 
+def _starts_of(u_init, cfg: SolverConfig) -> SolverConfig:
+    """``cfg`` with ``restarts`` = K where ``u_init`` holds K first guesses [K, T, nu]."""
+    shape = np.shape(u_init) if u_init is not None else ()
+    if len(shape) != 3:
+        return cfg
+    if shape[0] < 1:
+        raise ConfigError(f"`u_init` holds no first guess (shape {list(shape)}); give [K, horizon, nu] with K >= 1.")
+    if cfg.restarts not in (1, shape[0]):
+        raise ConfigError(
+            f"`u_init` holds {shape[0]} first guesses ([K, horizon, nu] = {list(shape)}) but `restarts` is "
+            f"{cfg.restarts}; give {cfg.restarts} guesses, or leave restarts at 1 (it then takes their number)."
+        )
+    return cfg.replace(restarts=shape[0])
+
+
 def _initial_controls(u_init, dims) -> jnp.ndarray:
+    """The first nominal's controls [T, nu] on the device, or the K first guesses [K, T, nu] (``_starts_of``)."""
     if u_init is None:
         return on_device(np.zeros((dims.horizon, dims.nu)))
     u = np.asarray(u_init, dtype=float)
-    if u.shape != (dims.horizon, dims.nu):
-        raise ConfigError(f"`u_init` must have shape [horizon, nu] = [{dims.horizon}, {dims.nu}]; got {u.shape}.")
+    if u.shape[-2:] != (dims.horizon, dims.nu) or u.ndim not in (2, 3) or (u.ndim == 3 and u.shape[0] < 1):
+        raise ConfigError(
+            f"`u_init` must have shape [horizon, nu] = [{dims.horizon}, {dims.nu}] (or [K, {dims.horizon}, "
+            f"{dims.nu}]: K first guesses); got {u.shape}."
+        )
+    if u.ndim == 3 and u.shape[0] == 1:  # one first guess: one solve
+        u = u[0]
     if not np.all(np.isfinite(u)):
         raise ConfigError("`u_init` holds non-finite numbers; use finite initial controls.")
     return on_device(u)
