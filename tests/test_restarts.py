@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 
 import numpy as np
 import pytest
@@ -119,3 +120,13 @@ def test_the_callers_own_first_guesses_are_the_starts(restarted):
         pj.solve(ENV, CFG.replace(restarts=2), u_init=guesses)
     with pytest.raises(pj.ConfigError, match="K first guesses"):
         pj.solve(ENV, CFG, u_init=guesses[:, :-1])
+
+
+def test_every_starts_cost_history_is_kept_and_drawn(restarted, tmp_path):
+    from podilqr_jax.viz.plots import plot_convergence
+
+    result, _ = restarted
+    assert all(len(s["cost_history"]) == s["iterations"] + 1 for s in result.starts)
+    assert result.starts[result.best_start]["cost_history"] == list(result.cost_history)
+    path = plot_convergence([result], tmp_path / "cost.png")
+    assert os.path.getsize(path) > 10_000

@@ -52,7 +52,7 @@ from .driver import Callback, Context, RunOptions, run_within
 from .interrupts import deferred_interrupts
 from .result import BASIN_RATIO, Result
 
-START_FIELDS = ("start", "seed", "cost", "true_cost", "status", "iterations", "rollouts", "wall_s")
+START_FIELDS = ("start", "seed", "cost", "true_cost", "status", "iterations", "rollouts", "wall_s", "cost_history")
 """What ``Result.starts`` holds for each start."""
 
 
@@ -158,6 +158,7 @@ def best_of(ctx: Context, ctxs: list[Context], results: list, wall: float, group
             "iterations": r.iterations,
             "rollouts": r.rollouts,
             "wall_s": r.wall_s,
+            "cost_history": list(r.cost_history),
         }
         for j, r in enumerate(results)
         if r is not None

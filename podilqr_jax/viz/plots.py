@@ -22,11 +22,20 @@ def agg_pyplot():
 
 def plot_convergence(results: Sequence[Result], path: str | os.PathLike, title: Optional[str] = None) -> str:
     """Cost per iteration (log scale) of one or more results, e.g. POD-iLQR and
-    the model-based reference on the same task."""
+    the model-based reference on the same task; with restarts each start's
+    history too, thin, beside the best one's."""
     plt = agg_pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for r in results:
-        ax.semilogy(np.arange(len(r.cost_history)), r.cost_history, marker=".", ms=3, label=f"{r.method} ({r.status})")
+        label = f"{r.method} ({r.status})"
+        if len(r.starts) > 1:
+            label = f"{r.method}, best of {len(r.starts)} starts ({r.status})"
+        (line,) = ax.semilogy(np.arange(len(r.cost_history)), r.cost_history, marker=".", ms=3, label=label)
+        others = [s for s in r.starts if s["start"] != r.best_start and s.get("cost_history")]
+        for i, s in enumerate(others):
+            history = s["cost_history"]
+            other_label = f"{r.method}, the other starts" if i == 0 else None
+            ax.semilogy(np.arange(len(history)), history, color=line.get_color(), lw=0.6, alpha=0.4, label=other_label)
     ax.set_xlabel("iteration")
     ax.set_ylabel("cost J")
     ax.set_title(title or f"{results[0].task}: cost convergence")
