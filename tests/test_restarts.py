@@ -130,3 +130,18 @@ def test_every_starts_cost_history_is_kept_and_drawn(restarted, tmp_path):
     assert result.starts[result.best_start]["cost_history"] == list(result.cost_history)
     path = plot_convergence([result], tmp_path / "cost.png")
     assert os.path.getsize(path) > 10_000
+
+
+def test_an_error_in_one_start_is_raised_and_the_others_stop(restarted):
+    """A start that raises (here its progress callback) ends the solve with that error, at once: no start waits
+    for it forever in the lockstep group."""
+    seen = []
+
+    def callback(info):
+        seen.append((info.start, info.iteration))
+        if info.start == 1 and info.iteration == 2:
+            raise ValueError("boom in start 1")
+
+    with pytest.raises(ValueError, match="boom in start 1"):
+        pj.solve(ENV, CFG.replace(restarts=K), callback=callback)
+    assert max(i for _, i in seen) <= 3  # the other starts stopped within an iteration
