@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import signal
+import time
 
 import numpy as np
 import pytest
@@ -13,7 +15,7 @@ import podilqr_jax as pj
 from podilqr_jax import cli
 from podilqr_jax.cli import main
 from podilqr_jax.compilation import lockstep
-from podilqr_jax.ilqr.restarts import first_guesses
+from podilqr_jax.ilqr.restarts import START_FIELDS, first_guesses
 from podilqr_jax.ilqr.result import BASIN_RATIO
 
 ENV = pj.make_task("pendulum-partial").replace(horizon=10)
@@ -39,6 +41,7 @@ def restarted():
 
 def test_restarts_return_the_lowest_start_and_every_starts_cost(restarted):
     result, group = restarted
+    assert all(tuple(s) == START_FIELDS for s in result.starts)
     assert [s["start"] for s in result.starts] == list(range(K))
     assert [s["seed"] for s in result.starts] == list(range(K))
     costs = [s["cost"] for s in result.starts]
@@ -145,3 +148,26 @@ def test_an_error_in_one_start_is_raised_and_the_others_stop(restarted):
     with pytest.raises(ValueError, match="boom in start 1"):
         pj.solve(ENV, CFG.replace(restarts=K), callback=callback)
     assert max(i for _, i in seen) <= 3  # the other starts stopped within an iteration
+
+
+@pytest.mark.parametrize("signals", [1, 2])
+def test_ctrl_c_stops_every_start(restarted, signals):
+    """Ctrl-C (here from a start's callback, in-process) stops every start at an iteration boundary and returns
+    the best one so far, status `interrupted`; a second one stops them at once (the lockstep group is aborted)."""
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        pytest.skip("another SIGINT handler is installed in this process")
+
+    from podilqr_jax.ilqr.interrupts import deferred_interrupts
+
+    def callback(info):
+        if info.start == 1 and info.iteration == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+            if signals == 2:  # the second once the first was handled (two pending signals would be one)
+                deadline = time.time() + 30
+                while not deferred_interrupts.requested and time.time() < deadline:
+                    time.sleep(0.001)
+                os.kill(os.getpid(), signal.SIGINT)
+
+    result = pj.solve(ENV, CFG.replace(restarts=K, max_iterations=50), callback=callback)
+    assert result.status == pj.Status.INTERRUPTED
+    assert all(s["status"] == "interrupted" and s["iterations"] <= 3 for s in result.starts)
