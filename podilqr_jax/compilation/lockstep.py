@@ -9,7 +9,7 @@ solve still running is waiting, the calls are grouped by stage and signature
 (static arguments, pytree structure, shapes), and the largest group runs as
 one call of the stage under ``jax.vmap``: a leading problem axis through the
 rollouts, the fit, the backward pass and the line search, so on an
-accelerator k starts cost about one batch. Each solve then gets its own slice
+accelerator k starts should cost about one batch. Each solve then gets its own slice
 and runs on to its next stage call. Arguments that every solve passes as the
 same object (the task's arrays, the step sizes) are passed once, unbatched.
 

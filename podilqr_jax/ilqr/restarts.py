@@ -22,7 +22,7 @@ The k solves are not run one after another. Each runs the one driver
 (``driver.run_within``) in a thread of its own, and their stage calls meet in
 a lockstep group (``compilation.lockstep``): each identification, backward
 pass and line search of the k solves is one batched call with a leading
-problem axis, so on an accelerator k starts cost about one batch, and on a
+problem axis, so that on an accelerator k starts should cost about one batch, and on a
 CPU one call per stage (the cores shared by the whole batch) instead of k.
 The compile ahead is off (the batched programs compile at their first call).
 
