@@ -26,6 +26,7 @@ switches the cache off; ``PODILQR_PYTEST_CACHE=DIR`` puts it elsewhere.
 
 import os
 import shutil
+import signal
 import tempfile
 
 import jax
@@ -85,3 +86,12 @@ def _mappings() -> int:
             return sum(1 for _ in f)
     except OSError:  # not Linux: clear after every module
         return MAPPINGS_BEFORE_CLEARING + 1
+
+
+@pytest.fixture
+def python_sigint():
+    """Python's own Ctrl-C handler while the test runs, which the solver defers
+    (``ilqr.interrupts``): a runner in the background, as CI is, ignores SIGINT."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)

@@ -148,7 +148,9 @@ def _sigint_later(delay_s: float) -> None:
 
 
 @pytest.mark.parametrize("after_iteration, delay_s", [(0, None), (1, 0.0), (3, 0.002)])
-def test_sigint_at_any_moment_stops_at_an_iteration_boundary(noisy_task, tmp_path, after_iteration, delay_s):
+def test_sigint_at_any_moment_stops_at_an_iteration_boundary(
+    noisy_task, tmp_path, after_iteration, delay_s, python_sigint
+):
     """In-process: a SIGINT before the first iteration (``delay_s`` None: sent
     synchronously while the handler is on) or at an arbitrary moment after
     iteration ``after_iteration`` (from another thread) returns a consistent
@@ -156,15 +158,6 @@ def test_sigint_at_any_moment_stops_at_an_iteration_boundary(noisy_task, tmp_pat
     uninterrupted solve."""
     import podilqr_jax.ilqr.interrupts as interrupts
 
-    # Python's own Ctrl-C handler, which the solver defers (a runner in the background, as CI is, ignores SIGINT)
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        _sigint_during_a_solve(noisy_task, tmp_path, after_iteration, delay_s, interrupts)
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def _sigint_during_a_solve(noisy_task, tmp_path, after_iteration, delay_s, interrupts):
     cfg = pj.default_config(noisy_task, max_iterations=500, seed=3)
 
     def callback(info):

@@ -151,7 +151,7 @@ def test_an_error_in_one_start_is_raised_and_the_others_stop(restarted):
 
 
 @pytest.mark.parametrize("signals", [1, 2])
-def test_ctrl_c_stops_every_start(restarted, signals):
+def test_ctrl_c_stops_every_start(restarted, signals, python_sigint):
     """Ctrl-C (here from a start's callback, in-process) stops every start at an iteration boundary and returns
     the best one so far, status `interrupted`; a second one stops them at once (the lockstep group is aborted)."""
     from podilqr_jax.ilqr.interrupts import deferred_interrupts
@@ -165,11 +165,6 @@ def test_ctrl_c_stops_every_start(restarted, signals):
                     time.sleep(0.001)
                 os.kill(os.getpid(), signal.SIGINT)
 
-    # Python's own Ctrl-C handler, which the solver defers (a runner in the background, as CI is, ignores SIGINT)
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        result = pj.solve(ENV, CFG.replace(restarts=K, max_iterations=50), callback=callback)
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    result = pj.solve(ENV, CFG.replace(restarts=K, max_iterations=50), callback=callback)
     assert result.status == pj.Status.INTERRUPTED
     assert all(s["status"] == "interrupted" and s["iterations"] <= 3 for s in result.starts)

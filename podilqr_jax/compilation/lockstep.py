@@ -194,7 +194,7 @@ class Member:
         this call alone, as outside the group."""
         leaves, treedef = jax.tree_util.tree_flatten(traced)
         avals = tuple(jax.typeof(leaf) for leaf in leaves)
-        signature = (name, tuple(sorted(static.items())), treedef, avals)
+        signature = (name, tuple(static.items()), treedef, avals)  # static: in the stage's own order
         return self.group.submit(_Call(self.index, signature, fun, static, leaves, treedef, solo))
 
 

@@ -121,15 +121,20 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
         name = f"{fun.__module__}.{fun.__qualname__}"
         runners: dict[Any, Callable] = {}
 
+        def split(args, kwargs) -> tuple[dict, dict]:
+            """The call's arguments by name: (the static ones, in ``static_argnames`` order; the traced ones)."""
+            bound = signature.bind(*args, **kwargs)
+            bound.apply_defaults()
+            static = {k: bound.arguments[k] for k in static_argnames}
+            return static, {k: v for k, v in bound.arguments.items() if k not in static_argnames}
+
         def target(args, kwargs) -> tuple[Callable, tuple, dict]:
             """What runs this call: (a callable, its positional and keyword arguments)."""
             where = folder()
             if where is None or jax.device_count() > 1 or _native_engine(args, kwargs):
                 return jitted, args, kwargs
-            bound = signature.bind(*args, **kwargs)
-            bound.apply_defaults()
-            static = tuple((k, bound.arguments[k]) for k in static_argnames)
-            traced = {k: v for k, v in bound.arguments.items() if k not in static_argnames}
+            static, traced = split(args, kwargs)
+            static = tuple(static.items())
             leaves, treedef = jax.tree_util.tree_flatten(traced)
             if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
                 return jitted.plain, args, kwargs  # inside another trace: its compiler options apply
@@ -153,10 +158,7 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
         def call(*args, **kwargs):
             member = lockstep.current()
             if member is not None:  # one of several solves in lockstep (``lockstep``): batched with theirs
-                bound = signature.bind(*args, **kwargs)
-                bound.apply_defaults()
-                static = {k: bound.arguments[k] for k in static_argnames}
-                traced = {k: v for k, v in bound.arguments.items() if k not in static_argnames}
+                static, traced = split(args, kwargs)
                 if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(traced)):
                     return member.submit(name, fun, static, traced, lambda: alone(args, kwargs))
             return alone(args, kwargs)

@@ -254,7 +254,7 @@ def _initial_controls(u_init, dims) -> jnp.ndarray:
     if u_init is None:
         return on_device(np.zeros((dims.horizon, dims.nu)))
     u = np.asarray(u_init, dtype=float)
-    if u.shape[-2:] != (dims.horizon, dims.nu) or u.ndim not in (2, 3) or (u.ndim == 3 and u.shape[0] < 1):
+    if u.shape[-2:] != (dims.horizon, dims.nu) or u.ndim not in (2, 3):  # K >= 1: ``_starts_of`` checked
         raise ConfigError(
             f"`u_init` must have shape [horizon, nu] = [{dims.horizon}, {dims.nu}] (or [K, {dims.horizon}, "
             f"{dims.nu}]: K first guesses); got {u.shape}."

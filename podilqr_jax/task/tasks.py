@@ -105,11 +105,7 @@ def make_task(name: str, *, horizon: int | None = None, noise: Any = None) -> En
         env = load_task(name)
         if horizon is not None:
             env = env.replace(horizon=horizon)
-        if isinstance(noise, str) and noise != "paper":
-            raise TaskError(f"Unknown noise preset {noise!r}; use 'paper', a NoiseModel or a mapping.")
-        if noise == "paper":  # the paper's levels, as for a bundled task (measurement noise where observed in part)
-            noise = NoiseModel.paper(PAPER_S0, partial=not env.fully_observed)
-        return env if noise is None else env.replace(noise=NoiseModel.from_any(noise))
+        return env if noise is None else env.replace(noise=_noise_model(noise, partial=not env.fully_observed))
     system, _, obs = name.partition("-")
     if system not in _SYSTEMS or obs not in _SYSTEMS[system]["observations"]:
         raise TaskError(
@@ -117,11 +113,7 @@ def make_task(name: str, *, horizon: int | None = None, noise: Any = None) -> En
             "of a task file (.toml or .json, see docs/task_files.md)."
         )
     spec = _SYSTEMS[system]
-    if isinstance(noise, str):
-        if noise != "paper":
-            raise TaskError(f"Unknown noise preset {noise!r}; use 'paper', a NoiseModel or a mapping.")
-        noise = NoiseModel.paper(PAPER_S0, partial=obs == "partial")
-    noise = NoiseModel.from_any(noise)
+    noise = _noise_model(noise, partial=obs == "partial")
     return Env.from_xml(
         os.path.join(MODELS_DIR, spec["xml"]),
         substeps=spec["substeps"],
@@ -133,3 +125,13 @@ def make_task(name: str, *, horizon: int | None = None, noise: Any = None) -> En
         noise=noise,
         **spec["observations"][obs],
     )
+
+
+def _noise_model(noise: Any, partial: bool) -> NoiseModel:
+    """``make_task``'s ``noise``: ``"paper"`` (measurement noise only where the
+    task observes part of its state), a :class:`NoiseModel`, a mapping or None."""
+    if isinstance(noise, str):
+        if noise != "paper":
+            raise TaskError(f"Unknown noise preset {noise!r}; use 'paper', a NoiseModel or a mapping.")
+        return NoiseModel.paper(PAPER_S0, partial=partial)
+    return NoiseModel.from_any(noise)
