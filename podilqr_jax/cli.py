@@ -404,7 +404,9 @@ def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
         options = {}
         if i == 0:  # checkpoints and resume belong to the main solve
             options = dict(checkpoint=args.checkpoint, checkpoint_every=args.every, resume=args.resume)
-        with _Progress(method, env.name, cfg.max_iterations, quiet=args.quiet, starts=cfg.restarts) as progress:
+        with _Progress(
+            method, env.name, cfg.max_iterations, quiet=args.quiet, starts=cfg.resolved_restarts(env)
+        ) as progress:
             results.append(fn(env, cfg, callback=progress.update, **options))
         print(results[-1].summary(), file=sys.stderr)
         if results[-1].status == pj.Status.INTERRUPTED or interrupts.requested:

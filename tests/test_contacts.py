@@ -56,7 +56,7 @@ def _exact_of(monkeypatch, env, cfg=None):
     cfg = pj.default_config(env, engine="mjx") if cfg is None else cfg
     captured = {}
     with monkeypatch.context() as patch:
-        patch.setattr(solver, "run", lambda ctx, *args: captured.setdefault("identify", ctx.identify))
+        patch.setattr(solver, "_run", lambda ctx, *args: captured.setdefault("identify", ctx.identify))
         solver.solve_model_based(env, cfg)
     return captured["identify"]
 

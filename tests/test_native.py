@@ -18,6 +18,7 @@ import pytest
 import podilqr_jax as pj
 from podilqr_jax.compilation import stages
 from podilqr_jax.errors import ConfigError
+from podilqr_jax.ilqr.config import CONTACT_RESTARTS
 from podilqr_jax.sim import engines
 from podilqr_jax.sim.native import NativeModel, native_model
 from podilqr_jax.sim.rollout import Policy, observations_of, open_loop_policy, rollout_batch
@@ -124,6 +125,8 @@ def test_a_contact_model_solves_on_the_native_engine_without_exporting_stages():
     refused = dict(stages.fallbacks)
     result = pj.solve(env, pj.default_config(env, max_iterations=3))
     assert result.engine == "native"
+    # a contact-rich model: several starts by default (SolverConfig.resolved_restarts)
+    assert len(result.starts) == CONTACT_RESTARTS and result.config["restarts"] == CONTACT_RESTARTS
     assert np.isfinite(result.final_cost) and result.final_cost < result.cost_history[0]
     # a stage that runs the C engine is never offered to jax.export (host callbacks cannot be exported)
     assert stages.fallbacks == refused

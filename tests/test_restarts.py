@@ -168,3 +168,17 @@ def test_ctrl_c_stops_every_start(restarted, signals, python_sigint):
     result = pj.solve(ENV, CFG.replace(restarts=K, max_iterations=50), callback=callback)
     assert result.status == pj.Status.INTERRUPTED
     assert all(s["status"] == "interrupted" and s["iterations"] <= 3 for s in result.starts)
+
+
+def test_restarts_default_to_several_starts_on_contact_rich_models_only():
+    from podilqr_jax.ilqr.config import CONTACT_RESTARTS
+    from podilqr_jax.task.taskfile import load_task
+
+    hopper = load_task("examples/tasks/third_party/gym_hopper_balance.toml")  # floor contacts: 38 constraint rows
+    assert pj.default_config(hopper).restarts is None
+    assert pj.default_config(hopper).resolved_restarts(hopper) == CONTACT_RESTARTS > 1
+    assert pj.default_config(ENV).resolved_restarts(ENV) == 1  # no contacts
+    assert pj.default_config(hopper, restarts=2).resolved_restarts(hopper) == 2  # a setting wins
+    # K first guesses set the number where restarts is left unset
+    guesses = np.zeros((2, ENV.dims.horizon, ENV.dims.nu))
+    assert pj.solve(ENV, CFG.replace(max_iterations=1), u_init=guesses).config["restarts"] == 2

@@ -80,7 +80,7 @@ def replan_episodes(
         raise ConfigError(f"`every` (steps between replans) must be in 1 .. horizon-1 = {T - 1}; got {every}.")
     if iterations < 1:
         raise ConfigError(f"`iterations` per replan must be >= 1; got {iterations}.")
-    cfg = cfg.replace(max_iterations=iterations)
+    cfg = cfg.replace(max_iterations=iterations, restarts=1)  # a local refinement of the shifted plan
 
     base = FeedbackPolicy.from_result(result)
     if not feedback:

@@ -70,7 +70,7 @@ def solve(
       cfg: solver settings; default :func:`default_config` of the task.
       u_init: initial nominal controls [T, nu]; default zeros. Or K first
         guesses [K, T, nu]: K starts from them (``restarts``, which is then
-        K or left at 1).
+        K, 1 or unset).
       callback: called with an :class:`IterationInfo` after every iteration.
       checkpoint: a folder; the solver state is saved there (atomically, as
         ``checkpoint.npz``) every ``checkpoint_every`` iterations and when
@@ -87,7 +87,7 @@ def solve(
     """
     cfg = _starts_of(u_init, default_config(env) if cfg is None else cfg)
     q = cfg.validate(env, data_based=True)
-    cfg = cfg.replace(n_s=cfg.resolved_n_s(env))
+    cfg = cfg.replace(n_s=cfg.resolved_n_s(env), restarts=cfg.resolved_restarts(env))
     run_options = _run_options(checkpoint, checkpoint_every, resume)
     env = engines.on_engine(env, cfg.engine)
     dims, data = env.dims, on_device(_in_impl(env, cfg.impl))
@@ -122,7 +122,7 @@ def solve_model_based(
     """
     cfg = _starts_of(u_init, default_config(env) if cfg is None else cfg)
     cfg.validate(env, data_based=False)
-    cfg = cfg.replace(n_s=cfg.resolved_n_s(env))
+    cfg = cfg.replace(n_s=cfg.resolved_n_s(env), restarts=cfg.resolved_restarts(env))
     run_options = _run_options(checkpoint, checkpoint_every, resume)
     env = engines.on_engine(env, "mjx" if cfg.engine == "auto" and cfg.jacobian == "exact" else cfg.engine)
     view = env.full_state_view()
@@ -148,8 +148,9 @@ def _plan(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int, sysid_rollouts
     memory budget (shared by the starts of ``restarts``), and the machine's part; ``sysid_rollouts`` 0 and a
     ``jacobian`` for the model-based reference."""
     ls_rollouts = len(_step_candidates(cfg, noisy)) * n_fwd
-    if cfg.restarts > 1:  # the starts' batches run side by side (``restarts``): the budget is shared
-        cfg = cfg.replace(memory_budget_mb=cfg.memory_budget_mb / cfg.restarts)
+    starts = cfg.restarts or 1  # resolved by the solve (None: one start)
+    if starts > 1:  # the starts' batches run side by side (``restarts``): the budget is shared
+        cfg = cfg.replace(memory_budget_mb=cfg.memory_budget_mb / starts)
     return build_plan(
         engine=dims.engine,
         impl=cfg.impl,
@@ -241,10 +242,10 @@ def _starts_of(u_init, cfg: SolverConfig) -> SolverConfig:
         return cfg
     if shape[0] < 1:
         raise ConfigError(f"`u_init` holds no first guess (shape {list(shape)}); give [K, horizon, nu] with K >= 1.")
-    if cfg.restarts not in (1, shape[0]):
+    if cfg.restarts not in (None, 1, shape[0]):
         raise ConfigError(
             f"`u_init` holds {shape[0]} first guesses ([K, horizon, nu] = {list(shape)}) but `restarts` is "
-            f"{cfg.restarts}; give {cfg.restarts} guesses, or leave restarts at 1 (it then takes their number)."
+            f"{cfg.restarts}; give {cfg.restarts} guesses, or leave restarts unset (it then takes their number)."
         )
     return cfg.replace(restarts=shape[0])
 
