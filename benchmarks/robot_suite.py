@@ -41,6 +41,9 @@ def run_one(path: str, out_dir: str, timeout: float) -> dict:
     mb = r.get("model_based", {})
     row.update(
         engine=r.get("engine", "mjx"),
+        starts=len(r.get("starts") or []) or 1,
+        pod_best_start=r.get("best_start", 0),
+        mb_best_start=mb.get("best_start", 0),
         pod_status=r["status"],
         pod_iterations=r["iterations"],
         pod_cost=r["final_cost"],
@@ -58,20 +61,22 @@ def run_one(path: str, out_dir: str, timeout: float) -> dict:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| task | engine | POD-iLQR | iterations | cost | model-based | iterations | cost | ratio | compile s "
+        "| task | engine | starts | POD-iLQR | iterations | cost | model-based | iterations | cost | ratio | compile s "
         "(POD / MB) | command wall s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         if r.get("timed_out"):
-            lines.append(f"| {r['task']} | | no result in {r['wall_s']:.0f} s | | | | | | | | |")
+            lines.append(f"| {r['task']} | | | no result in {r['wall_s']:.0f} s | | | | | | | | |")
             continue
         if "pod_status" not in r:
-            lines.append(f"| {r['task']} | | failed (rc {r['rc']}) | | | | | | | | {r['wall_s']:.0f} |")
+            lines.append(f"| {r['task']} | | | failed (rc {r['rc']}) | | | | | | | | {r['wall_s']:.0f} |")
             continue
         ratio = "" if r["ratio"] is None else f"{r['ratio']:.4f}"
+        starts = r.get("starts", 1)
+        best = f" (best {r['pod_best_start']} / {r['mb_best_start']})" if starts > 1 else ""
         lines.append(
-            f"| {r['task']} | {r['engine']} | {r['pod_status']} | {r['pod_iterations']} | {r['pod_cost']:.6g} | "
+            f"| {r['task']} | {r['engine']} | {starts}{best} | {r['pod_status']} | {r['pod_iterations']} | {r['pod_cost']:.6g} | "
             f"{r['mb_status']} | {r['mb_iterations']} | {r['mb_cost']:.6g} | {ratio} | "
             f"{r['pod_compile_s']:.1f} / {r['mb_compile_s']:.1f} | {r['wall_s']:.0f} |"
         )
