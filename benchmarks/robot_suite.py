@@ -76,7 +76,8 @@ def table(rows: list[dict]) -> str:
         starts = r.get("starts", 1)
         best = f" (best {r['pod_best_start']} / {r['mb_best_start']})" if starts > 1 else ""
         lines.append(
-            f"| {r['task']} | {r['engine']} | {starts}{best} | {r['pod_status']} | {r['pod_iterations']} | {r['pod_cost']:.6g} | "
+            f"| {r['task']} | {r['engine']} | {starts}{best} | {r['pod_status']} | {r['pod_iterations']} | "
+            f"{r['pod_cost']:.6g} | "
             f"{r['mb_status']} | {r['mb_iterations']} | {r['mb_cost']:.6g} | {ratio} | "
             f"{r['pod_compile_s']:.1f} / {r['mb_compile_s']:.1f} | {r['wall_s']:.0f} |"
         )
