@@ -4,10 +4,7 @@ Runs a one-iteration solve with the persistent cache off and JAX's compile
 log on, and prints the seconds of each tracing, lowering and XLA compilation
 per jitted program, largest first. Run it in a fresh process per
 measurement (``PODILQR_CACHE=0`` keeps every stage cold), and more than once:
-one sample varies by 20-30 % on a shared machine. The stages compile side
-by side before the first iteration (``podilqr_jax/compilation/ahead.py``), so their
-seconds add up to more than the wall time; ``PODILQR_COMPILE_AHEAD=0`` gives
-the one-after-the-other figures. ``PYTHONPATH`` of another
+one sample varies by 20-30 % on a shared machine. ``PYTHONPATH`` of another
 checkout measures that one (as in benchmarks/journal.md):
 
     PODILQR_CACHE=0 python benchmarks/compile_breakdown.py doublependulum-partial --method model-based

@@ -3,8 +3,7 @@
 For each task (bundled names or task files) runs a one-iteration solve of
 POD-iLQR and of the model-based reference, each in a fresh process with the
 persistent compilation cache off (``PODILQR_CACHE=0``), and prints a Markdown
-table of ``Result.compile_s`` (trace + lower + compile; a compile ahead,
-``compilation/ahead.py``, counts with its wall time) and, in brackets, the solve's
+table of ``Result.compile_s`` (trace + lower + compile) and, in brackets, the solve's
 wall time (``Result.wall_s``: the compile and one iteration; the same
 measure for a checkout whose ``compile_s`` counts otherwise). ``--source DIR`` runs
 the package from another checkout (``PYTHONPATH=DIR``), which is how

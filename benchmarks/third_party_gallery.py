@@ -150,10 +150,9 @@ def probe() -> str:
 def compile_table(stems: list[str], out_dir: str) -> str:
     """Per model: integrator, constraint rows at the start, compile seconds of
     each solve and the stage times (a stage's first call compiles it, so its
-    time is that compile plus every iteration's run). A solve whose stages
-    compiled ahead, side by side (``compilation/ahead.py``; its ``compile`` phase)
-    has no split to show: "ahead" stands in its place (run the gallery with
-    ``PODILQR_COMPILE_AHEAD=0`` for the split)."""
+    time is that compile plus every iteration's run). A result written by a
+    version that compiled the first iteration's stages ahead, side by side
+    (its ``compile`` phase), has no split to show: "ahead" stands in its place."""
     import mujoco
     from mujoco import mjx
 

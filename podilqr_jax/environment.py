@@ -7,8 +7,8 @@ when it is read and whether it changes results. Every reader of a
 - :func:`switch`: on (``1``, ``on``, ``true``, ``yes``) or off (``0``,
   ``off``, ``false``, ``no``), case and surrounding spaces ignored; unset or
   empty: the default.
-- :func:`choice`: a switch, a few named values of its own (``auto``,
-  ``read``) or, where the variable takes one, a count.
+- :func:`choice`: a switch or a few named values of its own (``auto``,
+  ``read``).
 - :func:`folder`: a path, ``~`` expanded.
 
 A value outside its rule keeps the default and warns once, naming the
@@ -20,14 +20,13 @@ from __future__ import annotations
 
 import os
 import warnings
-from typing import Mapping, Optional, Union
+from typing import Mapping, Optional
 
 X64 = "PODILQR_X64"
 VERBOSE = "PODILQR_VERBOSE"
 CACHE = "PODILQR_CACHE"
 CACHE_DIR = "PODILQR_CACHE_DIR"
 XLA_DEFAULTS = "PODILQR_XLA_DEFAULTS"
-COMPILE_AHEAD = "PODILQR_COMPILE_AHEAD"
 
 ON = ("1", "on", "true", "yes")
 OFF = ("0", "off", "false", "no")
@@ -58,10 +57,9 @@ def switch(name: str, default: bool) -> bool:
     return default
 
 
-def choice(name: str, default: str, named: Mapping[str, str] = {}, counts: bool = False) -> Union[str, int]:
-    """The setting ``name``: ``"on"`` or ``"off"`` (a switch), the value that
-    ``named`` maps its text to (aliases allowed), or, with ``counts``, an
-    integer N >= 2; ``default`` where unset."""
+def choice(name: str, default: str, named: Mapping[str, str] = {}) -> str:
+    """The setting ``name``: ``"on"`` or ``"off"`` (a switch) or the value that
+    ``named`` maps its text to (aliases allowed); ``default`` where unset."""
     text = _text(name)
     if not text:
         return default
@@ -71,9 +69,7 @@ def choice(name: str, default: str, named: Mapping[str, str] = {}, counts: bool 
         return "off"
     if text in named:
         return named[text]
-    if counts and text.isdigit() and int(text) >= 2:
-        return int(text)
-    takes = ", ".join(["1/on", "0/off", *sorted(set(named))] + (["an integer N >= 2"] if counts else []))
+    takes = ", ".join(["1/on", "0/off", *sorted(set(named))])
     _refuse(name, takes, default)
     return default
 

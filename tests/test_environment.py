@@ -36,11 +36,9 @@ def test_unset_or_empty_is_the_default(monkeypatch):
     assert environment.folder(NAME) is None
 
 
-def test_named_values_and_counts(monkeypatch):
+def test_named_values_and_folders(monkeypatch):
     monkeypatch.setenv(NAME, "RO")
     assert environment.choice(NAME, "on", {"read": "read", "ro": "read"}) == "read"
-    monkeypatch.setenv(NAME, "3")
-    assert environment.choice(NAME, "on", counts=True) == 3
     monkeypatch.setenv(NAME, "~/somewhere")
     assert environment.folder(NAME) == os.path.join(os.path.expanduser("~"), "somewhere")
 
@@ -51,8 +49,8 @@ def test_a_value_outside_the_rule_keeps_the_default_and_says_so(monkeypatch):
     with pytest.warns(UserWarning, match=r"PODILQR_TEST_SWITCH='maybe' is not one of 1/on, 0/off; using off"):
         assert environment.switch(NAME, False) is False
     monkeypatch.setenv(NAME, "7x")
-    with pytest.warns(UserWarning, match=r"not one of 1/on, 0/off, auto, an integer N >= 2; using auto"):
-        assert environment.choice(NAME, "auto", {"auto": "auto"}, counts=True) == "auto"
+    with pytest.warns(UserWarning, match=r"not one of 1/on, 0/off, auto; using auto"):
+        assert environment.choice(NAME, "auto", {"auto": "auto"}) == "auto"
 
 
 def test_float64_is_switched_off_by_any_off_spelling():

@@ -6,7 +6,6 @@ from __future__ import annotations
 import jax
 
 import podilqr_jax as pj
-from podilqr_jax.compilation import ahead
 from podilqr_jax.ilqr import solver
 from podilqr_jax.sim.rollout import on_device
 
@@ -19,7 +18,7 @@ def test_the_result_records_how_the_solve_ran(tmp_path):
     assert (plan["backend"], plan["devices"], plan["processes"]) == (jax.default_backend(), 1, 1)
     # 8 sysid rollouts and 10 line-search candidates, each one batch under the default budget
     assert (plan["sysid_rollouts"], plan["sysid_chunk"], plan["ls_rollouts"], plan["ls_chunk"]) == (8, None, 10, None)
-    assert plan["jacobian"] == "" and plan["compile_ahead"] == ahead.workers()
+    assert plan["jacobian"] == "" and plan["starts"] == 1
     assert plan["xla_options"] == {"xla_cpu_use_fusion_emitters": False} and plan["x64"] is True
     assert plan["cache"] in ("on", "read", "off", "jax")
     result.save_json(tmp_path / "r.json")
@@ -42,5 +41,3 @@ def test_a_small_memory_budget_chunks_both_batches(monkeypatch):
     plan = solver._plan(dims, data, cfg, True, n_fwd, sysid_rollouts=cfg.n_s * cfg.resolved_n_avg())
     assert plan.sysid_rollouts == 400 and plan.ls_rollouts == (cfg.n_alphas + 1) * n_fwd == 440
     assert 1 <= plan.sysid_chunk < 400 and 1 <= plan.ls_chunk < 440
-    monkeypatch.setenv("PODILQR_COMPILE_AHEAD", "0")
-    assert solver._plan(dims, data, cfg, True, n_fwd, sysid_rollouts=400).compile_ahead == 0

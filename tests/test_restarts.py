@@ -47,7 +47,7 @@ def test_restarts_return_the_lowest_start_and_every_starts_cost(restarted):
     costs = [s["cost"] for s in result.starts]
     assert len(set(costs)) == K  # other first guesses, other runs
     assert result.best_start == int(np.argmin(costs)) and result.final_cost == min(costs)
-    assert result.plan["starts"] == K and result.plan["compile_ahead"] == 0
+    assert result.plan["starts"] == K
     assert group.batches.get(K, 0) >= 4 * CFG.max_iterations  # the stages of all starts ran as batches of K
     assert f"{K} starts, the best is start {result.best_start}" in result.summary()
     again = pj.Result.from_dict(json.loads(json.dumps(result.to_dict())))

@@ -25,10 +25,6 @@ Inside a lockstep group (``lockstep``: the solves of ``restarts``, one per
 thread) a stage call waits for the other solves' calls and runs with them as
 one ``vmap`` of the stage (a plain jit, not kept on disk).
 
-Inside the driver's dry run (``ahead``) a stage call is lowered along the
-same path, compiled in a thread and answered with zeros of its output's
-shapes, so the real call that follows finds its executable compiled.
-
 Where a stage cannot go this way it is the plain jitted function: the
 package's cache off (``PODILQR_CACHE=0``) or a cache the user configured
 for JAX, a call from inside another trace (``vmap``, ``jit``), more than one
@@ -52,7 +48,7 @@ import jax
 import numpy as np
 
 from ..atomic import write_atomic
-from . import ahead, cache, lockstep, xla_options
+from . import cache, lockstep, xla_options
 
 FOLDER_NAME = "podilqr-stages"
 fallbacks: dict[str, str] = {}  # stage name -> why it runs as a plain jit (the last refusal)
@@ -149,9 +145,6 @@ def stage(static_argnames: Sequence[str] = (), outputs: Sequence[type] = ()) -> 
 
         def alone(args, kwargs):
             fn, a, kw = target(args, kwargs)
-            dry = ahead.current()
-            if dry is not None and fn is not jitted.plain:
-                return dry.submit(name, fn, a, kw)  # lowered now, compiled beside the rest (``ahead``)
             return fn(*a, **kw)
 
         @functools.wraps(fun)

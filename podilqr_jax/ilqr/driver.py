@@ -16,8 +16,7 @@ and :func:`run` loops ``step`` with the progress callback, checkpoints and
 Ctrl-C (``interrupts``). The driver only moves scalars to the host (cost,
 acceptance, step size, mu), so each iteration can be reported live; every
 array stays on the device. All jitted stages compile before or in the first
-iteration and never again (``compilation.compile_watch``): before it, side by side in
-threads, where :func:`compile_ahead` can (``compilation.ahead``).
+iteration and never again (``compilation.compile_watch``).
 
 Regularisation schedule: after an accepted step mu <- max(mu / f, mu_min);
 after the n-th consecutive rejected step mu <- max(mu f^n, mu_min) and the
@@ -37,10 +36,9 @@ from typing import Callable, NamedTuple, Optional
 import jax
 import numpy as np
 
-from ..compilation import ahead
 from ..compilation.compile_watch import CompileWatch
 from ..identify.identification import Experiment
-from ..sim.rollout import Policy, observations_of, on_device, replicated
+from ..sim.rollout import Policy, observations_of, on_device
 from ..task.env import Env, EnvData, EnvDims
 from . import stopping
 from .backward import QuadraticCost, Regularisation, backward_pass
@@ -56,7 +54,7 @@ from .true_cost import true_costs
 
 Callback = Callable[[IterationInfo], None]
 
-PHASES = ("compile", "rollouts", "fit", "backward", "line_search", "evaluation", "host")
+PHASES = ("rollouts", "fit", "backward", "line_search", "evaluation", "host")
 
 
 class RunOptions(NamedTuple):
@@ -86,7 +84,7 @@ class Context:
     cost_model: QuadraticCost
     reg: Regularisation
     steps: np.ndarray  # the candidate step sizes
-    plan: ExecutionPlan  # how the solve runs: engine, batch sizes and chunks, compile ahead (``plan``)
+    plan: ExecutionPlan  # how the solve runs: engine, batch sizes and chunks (``plan``)
     search: Search  # how its line searches run (static)
     candidates: Candidates  # ... the step sizes on the device, with alpha = 0 last under noise
     hold: Step  # the step that changes nothing (k = 0): a measurement of the policy as it is
@@ -109,18 +107,12 @@ class Outcome(NamedTuple):
 
 
 class Timing:
-    """Seconds per phase and compilations per iteration (not checkpointed).
-
-    ``phase_s["compile"]`` is the wall time of the compile ahead
-    (:func:`compile_ahead`), ``ahead_events_s`` the trace, lower and compile
-    seconds it summed over its threads (more than its wall time where they
-    overlapped)."""
+    """Seconds per phase and compilations per iteration (not checkpointed)."""
 
     def __init__(self):
         self.phase_s = dict.fromkeys(PHASES, 0.0)
         self.compiles: list[int] = []
         self.first_compiles = 0
-        self.ahead_events_s = 0.0
 
     def add(self, phase: str, t0: float) -> None:
         self.phase_s[phase] += time.perf_counter() - t0
@@ -155,44 +147,12 @@ def ground_truth(ctx: Context, st: SolverState, timing: Timing) -> tuple[float, 
     return out
 
 
-def compile_ahead(ctx: Context, st: SolverState, timing: Timing) -> int:
-    """Compile the stages of the first iteration side by side, before it runs
-    (``compilation.ahead``): the identification, the backward pass, the line search
-    (as the first measurement calls it) and, under noise, the true cost, each
-    called as ``init`` and ``step`` will call it, on zeros of the shapes they
-    will see, inside a dry run. ``st`` is read, never changed. Returns the
-    compilations it made (0 where the dry run is off)."""
-    n_workers = ctx.plan.compile_ahead
-    if n_workers == 0:
-        return 0
-    dims = ctx.dims
-    t0 = time.perf_counter()
-    with CompileWatch() as watch:
-        with ahead.dry_run(n_workers, place=lambda a: jax.device_put(a, replicated())):
-            T = dims.horizon
-            zeros = [on_device(np.zeros(shape)) for shape in ((T, dims.nu), (T + 1, dims.nz), (T + 1, dims.nx))]
-            nominal = Nominal(*zeros, on_device(np.zeros((T + 1, ctx.nZ))), 0.0)
-            _, key = jax.random.split(st.key)
-            sigma = st.sigma * reidentify_scale(st.reidentified)
-            found = ctx.identify(key, nominal, st.gains, sigma, Experiment(bool(st.mirrored), bool(st.open_loop)))
-            backward_pass(found.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, on_device(st.mu), ctx.reg)
-            _, sub = jax.random.split(st.ls_key)
-            line_search(ctx.search, ctx.data, policy_of(nominal, st.gains), ctx.hold, ctx.candidates, sub)
-            if ctx.noisy:
-                true_costs(ctx.dims, ctx.q, ctx.data, policy_of(nominal, st.gains))
-    timing.add("compile", t0)
-    timing.ahead_events_s += watch.seconds
-    return watch.compiles
-
-
 def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverState:
     """The state before the first iteration: the first nominal measured (the
     line search with k = 0, K = 0 rolls out ``u_init`` open loop), or a
-    checkpoint; the first iteration's stages compiled ahead (:func:`compile_ahead`)."""
+    checkpoint."""
     if resume is not None:
-        st = load_checkpoint(resume, ctx.fingerprint, on_device)
-        timing.first_compiles = compile_ahead(ctx, st, timing)
-        return st
+        return load_checkpoint(resume, ctx.fingerprint, on_device)
     cfg, dims = ctx.cfg, ctx.dims
     key = jax.random.PRNGKey(cfg.seed)
     st = SolverState(
@@ -204,7 +164,6 @@ def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverS
         sigma=float(cfg.sigma),
         mirrored=int(cfg.mirrored),
     )
-    compiled_ahead = compile_ahead(ctx, st, timing)
     with CompileWatch() as watch:
         first = Policy(u_init, on_device(np.zeros((dims.horizon, ctx.nZ))), st.gains)
         ls, _ = measure(ctx, st, timing, first, None, np.inf)
@@ -216,7 +175,7 @@ def init(ctx: Context, timing: Timing, u_init, resume: Optional[str]) -> SolverS
         [st.nominal.cost], [true_cost], [open_cost],
     )  # fmt: skip
     record.rollouts = ctx.plan.ls_rollouts
-    timing.first_compiles = compiled_ahead + watch.compiles
+    timing.first_compiles = watch.compiles
     return st
 
 
@@ -511,8 +470,7 @@ def terminate(ctx: Context, st: SolverState, stop: Stop, timing: Timing, watch: 
             "(what auto takes on such a model) has no such blind spot"
         )
     nominal = st.nominal
-    # the compile ahead counts with its wall time, not the summed seconds of its overlapping threads
-    compile_s = watch.seconds - timing.ahead_events_s + timing.phase_s["compile"]
+    compile_s = watch.seconds
     k = np.asarray(st.back_k) if st.back_k is not None else np.zeros((dims.horizon, dims.nu))
     x_bar = np.asarray(nominal.x_bar)
     pod = ctx.data_based

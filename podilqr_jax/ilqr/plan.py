@@ -18,19 +18,16 @@ solve runs it on this machine:
   (None: one batch);
 - ``jacobian``: the model-based reference's linearisation (``exact`` or
   ``differences``; empty for POD-iLQR);
-- ``compile_ahead``: the threads of the dry run that compiles the first
-  iteration's stages side by side (``compilation.ahead``; 0: off);
 - ``xla_options``, ``cache``, ``x64``: what the package compiles with
   (``compilation.xla_options``), the persistent compilation cache's state
   (``compilation.cache``: on, read, off, or the user's own JAX cache) and the float
   width;
 - ``starts``: the solves of a solve with restarts that run in lockstep, each
-  stage one batched call (``restarts``, ``compilation.lockstep``; the compile
-  ahead is then off).
+  stage one batched call (``restarts``, ``compilation.lockstep``).
 
 ``solver`` builds it from the model, the settings and the machine (and the
 environment switches of docs/environment.md, read there once); the
-identification, the line search and the compile ahead take their sizes from
+identification and the line search take their sizes from
 it, and the result records it (``Result.plan``, and ``plan`` in its JSON),
 so a result says how it was computed as well as what.
 """
@@ -42,7 +39,7 @@ from typing import Any, Optional
 
 import jax
 
-from ..compilation import ahead, cache, xla_options
+from ..compilation import cache, xla_options
 from ..sim.rollout import bytes_per_rollout
 from ..task.env import EnvData, EnvDims
 from .config import SolverConfig
@@ -62,7 +59,6 @@ class ExecutionPlan:
     ls_rollouts: int
     ls_chunk: Optional[int]
     jacobian: str
-    compile_ahead: int
     xla_options: tuple[tuple[str, Any], ...]
     cache: str
     x64: bool
@@ -99,7 +95,7 @@ def build_plan(
     jacobian: str = "",
 ) -> ExecutionPlan:
     """The plan of a solve whose sizes the solver has worked out; the machine's
-    part (devices, the compile ahead, XLA's options, the cache, x64) read here."""
+    part (devices, XLA's options, the cache, x64) read here."""
     return ExecutionPlan(
         engine=engine,
         impl=impl if engine == "mjx" else "",
@@ -111,7 +107,6 @@ def build_plan(
         ls_rollouts=ls_rollouts,
         ls_chunk=ls_chunk,
         jacobian=jacobian,
-        compile_ahead=ahead.workers(),
         xla_options=tuple(sorted(xla_options.options().items())),
         cache=cache.mode(),
         x64=bool(jax.config.jax_enable_x64),

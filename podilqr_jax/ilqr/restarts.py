@@ -24,7 +24,6 @@ a lockstep group (``compilation.lockstep``): each identification, backward
 pass and line search of the k solves is one batched call with a leading
 problem axis, so that on an accelerator k starts should cost about one batch, and on a
 CPU one call per stage (the cores shared by the whole batch) instead of k.
-The compile ahead is off (the batched programs compile at their first call).
 
 Checkpoints: start j writes to and resumes from the subfolder ``startJ`` of
 the folder given. A resumed solve equals the uninterrupted one to round-off
@@ -102,7 +101,7 @@ def _start_options(options: RunOptions, j: int) -> RunOptions:
 def run(ctx: Context, u_init, callback: Optional[Callback], options: RunOptions) -> Result:
     """``ctx.cfg.restarts`` solves in lockstep (module docstring); the best one's result."""
     k = ctx.cfg.restarts
-    plan = dataclasses.replace(ctx.plan, compile_ahead=0, starts=k)
+    plan = dataclasses.replace(ctx.plan, starts=k)
     ctxs = [_start_context(ctx, j, plan) for j in range(k)]
     opts = [_start_options(options, j) for j in range(k)]
     guesses = first_guesses(ctx.cfg, ctx.data.u_low, ctx.data.u_high, u_init, k)

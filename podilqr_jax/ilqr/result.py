@@ -87,10 +87,10 @@ class Result:
     q: int
     record: Record  # the counters and histories (iterations, rollouts, cost_history, ...)
     wall_s: float
-    compile_s: float  # tracing, lowering and compiling (the compile ahead, compilation/ahead.py, at its wall time)
+    compile_s: float  # tracing, lowering and compiling
     run_s: float
     compiles_per_iteration: list[int]
-    phase_s: dict[str, float]  # seconds per phase (driver.PHASES); "compile" is the compile ahead
+    phase_s: dict[str, float]  # seconds per phase (driver.PHASES)
     config: dict[str, Any]
     control_dt: float
     observation_labels: tuple[str, ...] = ()
