@@ -99,7 +99,7 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         metavar="K",
         help="solve from K first guesses at once (one batch per stage) and keep the lowest cost "
-        "(the setting `restarts`; checkpoints go to DIR/startJ)",
+        "(the setting `restarts`; default 1, and 4 on a model with floor contacts; checkpoints go to DIR/startJ)",
     )
     p.add_argument("--out", default="result.json", help="JSON result path (plots are written beside it)")
     p.add_argument(
