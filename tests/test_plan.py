@@ -36,6 +36,7 @@ def test_a_small_memory_budget_chunks_both_batches(monkeypatch):
     budget of a few rollouts (nothing compiles: the plan alone)."""
     env = pj.make_task("pendulum-partial", noise="paper")
     cfg = pj.default_config(env, variant="averaged", memory_budget_mb=0.05)
+    cfg = cfg.replace(restarts=cfg.resolved_restarts(env))  # as the solve resolves it
     dims, data = env.dims, on_device(env.data)
     n_fwd = cfg.resolved_n_forward()
     plan = solver._plan(dims, data, cfg, True, n_fwd, sysid_rollouts=cfg.n_s * cfg.resolved_n_avg())

@@ -148,9 +148,8 @@ def _plan(dims, data, cfg: SolverConfig, noisy: bool, n_fwd: int, sysid_rollouts
     memory budget (shared by the starts of ``restarts``), and the machine's part; ``sysid_rollouts`` 0 and a
     ``jacobian`` for the model-based reference."""
     ls_rollouts = len(_step_candidates(cfg, noisy)) * n_fwd
-    starts = cfg.restarts or 1  # resolved by the solve (None: one start)
-    if starts > 1:  # the starts' batches run side by side (``restarts``): the budget is shared
-        cfg = cfg.replace(memory_budget_mb=cfg.memory_budget_mb / starts)
+    if cfg.restarts > 1:  # the starts' batches run side by side (``restarts``, resolved): the budget is shared
+        cfg = cfg.replace(memory_budget_mb=cfg.memory_budget_mb / cfg.restarts)
     return build_plan(
         engine=dims.engine,
         impl=cfg.impl,
