@@ -66,7 +66,7 @@ def row(stem: str, out_dir: str, fig_dir: str) -> str | None:
         proc = _read(os.path.join(folder, "process.json"))
         if not proc:
             return None
-        return f"| {stem} | (no result: exit {proc.get('rc', '?')}, see runs/third_party/{stem}/log.txt) |||||||||"
+        return f"| {stem} | (no result: exit {proc.get('rc', '?')}, see runs/third_party/{stem}/log.txt) ||||||||||"
     d = _read(path)
     mb = d.get("model_based", {})
     ratio = d.get("ratio_to_model_based")
@@ -75,12 +75,18 @@ def row(stem: str, out_dir: str, fig_dir: str) -> str | None:
     return (
         f"| [{d['task']}](../examples/tasks/third_party/{stem}.toml) | {_g(ratio, '.6f')} | {d['status']} "
         f"| {_g(d['final_cost'], '.6g')} | {_g(mb.get('final_cost'), '.6g')} ({mb.get('status', '-')}) "
-        f"| {d['iterations']} / {mb.get('iterations', '-')} | {d['rollouts']} "
+        f"| {d['iterations']} / {mb.get('iterations', '-')} | {d['rollouts']} | {_engine(d)} "
         f"| {d['wall_s']:.0f} ({d['compile_s']:.0f}) "
         f"| {_g(mb.get('wall_s'), '.0f')} ({_g(mb.get('compile_s'), '.0f')}) "
         f"| [figure]({os.path.relpath(fig, os.path.join(ROOT, 'docs'))}) "
         f"| {'energy off' if 'energy' in notes else ''} |"
     )
+
+
+def _engine(d: dict) -> str:
+    """The engine that ran the rollouts, and the starts where there were several (``restarts``)."""
+    starts = len(d.get("starts") or [])
+    return d.get("engine", "mjx") + (f", {starts} starts" if starts > 1 else "")
 
 
 def _figure(result_path: str, stem: str, fig_dir: str) -> str:
@@ -105,9 +111,9 @@ def _g(value, spec: str) -> str:
 def write_table(stems: list[str], out_dir: str, doc: str, fig_dir: str) -> str:
     header = (
         "| task | POD-iLQR / model-based | POD-iLQR status | POD-iLQR cost | model-based cost (status) "
-        "| iterations (POD / MB) | POD rollouts | POD wall s (compile s) | MB wall s (compile s) "
+        "| iterations (POD / MB) | POD rollouts | engine | POD wall s (compile s) | MB wall s (compile s) "
         "| trajectory | notes |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|"
     )
     rows = [r for r in (row(s, out_dir, fig_dir) for s in stems) if r]
     table = "\n".join([header, *rows])
