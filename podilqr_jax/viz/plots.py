@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import os
-from typing import Optional, Sequence
+from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
 
-from ..ilqr.result import Result
+if TYPE_CHECKING:  # results are read, never built, here: viz/ imports nothing of ilqr/
+    from ..ilqr.result import Result
 
 
 def agg_pyplot():
