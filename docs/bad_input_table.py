@@ -102,7 +102,11 @@ CASES = (
         SOLVE,
         model=dict(geom="mesh", geom_args='mesh="m"', asset='<asset><mesh name="m" file="missing.stl"/></asset>'),
     ),
-    Case("A model MJX cannot load (implicit integrator)", SOLVE, model=dict(integrator="implicit")),
+    Case(
+        "A model MJX cannot load (implicit integrator), asked to run on MJX",
+        SOLVE + ("--set", "engine=mjx"),
+        model=dict(integrator="implicit"),
+    ),
     Case("The model file does not exist", SOLVE, raw_task=TASK.format(**GOOD_TASK).replace("arm.xml", "nope.xml")),
     Case("An unknown joint name", SOLVE, task=dict(observation='qpos = ["elbow"]')),
     Case(

@@ -381,19 +381,21 @@ def _cmd_solve(args: argparse.Namespace) -> int:
 def _solve_and_write(args: argparse.Namespace, interrupts) -> int:
     import podilqr_jax as pj
 
+    from .sim import engines
     from .task.loading import load_env
 
     sets = _parse_sets(args.set)
     check_writable(args.out)
     env = load_env(args.task, args.noise)
-    for note in env.model_notes:  # options MJX refuses that do not change the dynamics (env.mjx_model_of)
-        print(f"note: {note}", file=sys.stderr)
     horizon = sets.pop("horizon", None)
     if horizon is not None:
         env = env.replace(horizon=horizon)
     if args.restarts is not None:
         sets["restarts"] = args.restarts
     cfg = pj.default_config(env, **sets)
+    # The options switched off for MJX, or why `auto` runs the C engine (Result.warnings keeps them too).
+    for note in engines.on_engine(env, cfg.engine).model_notes:
+        print(f"note: {note}", file=sys.stderr)
 
     runs = [args.method] + (["model-based"] if args.compare and args.method != "model-based" else [])
     if "model-based" in runs:

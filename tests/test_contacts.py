@@ -71,7 +71,7 @@ def _resting_arm(tmp_path, cone="pyramidal"):
     mujoco.mj_forward(env.mj_model, probe)
     assert probe.ncon >= 1  # the foot touches the floor
     # Few rows: the solver's `auto` would take forward mode here, so the tests call `linearise` directly.
-    assert contacts.constraint_rows(env.data.model) < contacts.MANY_ROWS
+    assert contacts.constraint_rows(env.mj_model) < contacts.MANY_ROWS
     dims, data = env.dims, on_device(env.data)
     return dims, data, *_nominal(dims, data, np.linspace(-0.5, 0.5, HORIZON * dims.nu).reshape(HORIZON, dims.nu))
 

@@ -8,6 +8,7 @@ import os
 import pytest
 
 import podilqr_jax as pj
+from podilqr_jax.sim import engines
 from podilqr_jax.task.tasks import MODELS_DIR
 
 PENDULUM = os.path.join(MODELS_DIR, "pendulum.xml")
@@ -36,10 +37,13 @@ def test_model_mjx_cannot_load_names_the_feature(tmp_path):
         '<joint name="j" type="hinge"/><geom size=".1"/></body></worldbody>'
         '<actuator><motor joint="j"/></actuator></mujoco>'
     )
-    # `override` changes the contacts' parameters, so it is refused (the
-    # reporting-only `energy` flag is switched off instead: test_third_party.py).
-    with pytest.raises(pj.ModelLoadError, match="MJX cannot load.*OVERRIDE"):
-        pj.Env.from_xml(_write(tmp_path, "override.xml", xml))
+    # `override` changes the contacts' parameters, so MJX refuses it where it
+    # would run (the reporting-only `energy` flag is switched off instead:
+    # test_third_party.py); MuJoCo's C engine runs the model as it is.
+    env = pj.Env.from_xml(_write(tmp_path, "override.xml", xml))
+    with pytest.raises(pj.ModelLoadError, match="MJX cannot load.*OVERRIDE.*'native'"):
+        engines.on_engine(env, "mjx")
+    assert engines.on_engine(env, "auto").dims.engine == "native"
 
 
 def test_model_without_actuators(tmp_path):

@@ -19,6 +19,7 @@ import pytest
 import podilqr_jax as pj
 from podilqr_jax.cli import main as cli_main
 from podilqr_jax.identify.model_based import nonfinite_hint
+from podilqr_jax.sim import engines
 from podilqr_jax.sim.rollout import open_loop_policy, physics_step, rollout_batch, with_state
 from podilqr_jax.task.noise import sample
 from podilqr_jax.task.package_files import resolve_model_path
@@ -101,16 +102,18 @@ _ONE_LINK = """
 """
 
 
-def test_dynamics_changing_features_mjx_cannot_run_are_refused_by_name():
+def test_dynamics_changing_features_mjx_cannot_run_are_refused_by_name_on_mjx():
+    """They load, and MuJoCo's C engine runs them (tests/test_mjx_optional.py); MJX refuses by name."""
     motor = '<motor joint="j"/>'
+    implicit_xml = _ONE_LINK.format(integrator="implicit", actuator=motor)
+    implicit = pj.Env.from_model(mujoco.MjModel.from_xml_string(implicit_xml))
     with pytest.raises(pj.ModelLoadError, match="integrator is 'implicit'.*implicitfast"):
-        pj.Env.from_model(mujoco.MjModel.from_xml_string(_ONE_LINK.format(integrator="implicit", actuator=motor)))
-    stateful = '<general name="slow" joint="j" dyntype="filter" dynprm="0.1"/>'
-    with pytest.raises(pj.TaskError, match="activation dynamics \\(slow"):
-        pj.Env.from_model(mujoco.MjModel.from_xml_string(_ONE_LINK.format(integrator="Euler", actuator=stateful)))
-    dog = mujoco.MjModel.from_xml_path(resolve_model_path("pkg://dm_control/suite/dog.xml"))
+        engines.on_engine(implicit, "mjx")
+    dog_model = mujoco.MjModel.from_xml_path(resolve_model_path("pkg://dm_control/suite/dog.xml"))
+    dog = pj.Env.from_model(dog_model, name="dog")
     with pytest.raises(pj.ModelLoadError, match="MJX cannot load the model 'dog'.*collisions not implemented"):
-        pj.Env.from_model(dog, name="dog")
+        engines.on_engine(dog, "mjx")
+    assert dog.dims.na == 38 and dog.dims.nx == 87 + 85 + 38  # its filtered motors' activations are states
 
 
 def test_model_based_nonfinite_message_names_the_elliptic_cone():

@@ -83,10 +83,10 @@ def fit_residual(report: FitReport, z_bar) -> tuple[float, float]:
 
 def excited_rank(dims, q: int) -> np.ndarray:
     """[T] the most directions the sysid data can excite at each step t from a
-    fixed start state, noiseless: min(q (nz + nu), nu (t + 1), 2 nv + q nu)
+    fixed start state, noiseless: min(q (nz + nu), nu (t + 1), 2 nv + na + q nu)
     (see the module docstring)."""
     t = np.arange(dims.horizon)
-    cap = min(n_regressors(dims.nz, dims.nu, q), 2 * dims.nv + q * dims.nu)
+    cap = min(n_regressors(dims.nz, dims.nu, q), dims.ndx + q * dims.nu)
     return np.minimum(cap, dims.nu * (t + 1)).astype(np.int32)
 
 

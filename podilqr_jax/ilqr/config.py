@@ -494,7 +494,7 @@ class SolverConfig:
         model (``sim.contacts.contact_rich``: floor contacts) and 1 otherwise."""
         if self.restarts is not None:
             return self.restarts
-        return CONTACT_RESTARTS if contacts.contact_rich(env.data.model) else 1
+        return CONTACT_RESTARTS if contacts.contact_rich(env.mj_model) else 1
 
     def resolved_n_avg(self) -> int:
         """``n_avg``, or where it is None 10 for the averaged variant and 1 otherwise."""

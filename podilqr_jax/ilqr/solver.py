@@ -26,7 +26,7 @@ from ..identify.info_state import info_dim, observation_selector
 from ..identify.model_based import nonfinite_hint
 from ..sim import contacts, engines
 from ..sim.rollout import on_device
-from ..task.env import Env, mjx_model_of
+from ..task.env import Env
 from . import restarts
 from .backward import QuadraticCost, Regularisation
 from .checkpoint import fingerprint
@@ -130,7 +130,7 @@ def solve_model_based(
     native = dims.native is not None  # no derivative through MuJoCo's C engine: central differences, batched
     floating = bool(dims.quats)  # a free or ball joint: forward mode is blind at zero angular rate
     jacobian = (
-        "differences" if native and cfg.jacobian == "auto" else contacts.jacobian(cfg.jacobian, data.model, floating)
+        "differences" if native and cfg.jacobian == "auto" else contacts.jacobian(cfg.jacobian, env.mj_model, floating)
     )
     plan = _plan(dims, data, cfg, False, 1, jacobian=jacobian)
     identify = Exact(dims, data, nonfinite_hint(env.mj_model), plan.jacobian)
@@ -207,10 +207,9 @@ def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int,
 
 def _in_impl(env: Env, impl: str):
     """The task's data with its MJX model in implementation ``impl`` (``SolverConfig.impl``)."""
-    if impl == "jax":
+    if impl == "jax" or env.dims.native is not None:
         return env.data
-    model, _ = mjx_model_of(env.mj_model, env.name, impl=impl)
-    return env.data._replace(model=model)
+    return env.data._replace(model=env.mjx_model(impl))
 
 
 def _run_options(checkpoint, every, resume) -> RunOptions:

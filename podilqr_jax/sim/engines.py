@@ -16,6 +16,13 @@ shard), and on a single CPU device picks by the model (:func:`auto_engine`):
   and the field's robots, where MJX compiles for 4-18 s (the manipulator: no
   result in 90 s) against the native engine's 0.3-1 s.
 
+A model MJX cannot convert (``Env.mjx_problem``: a geom pair without an MJX
+collision function, the implicit integrator, a sensor MJX does not compute)
+runs on the native engine under ``auto`` wherever JAX runs on a CPU, with a
+one-line note saying why (``Env.model_notes``, ``Result.warnings``); on an
+accelerator, and under ``engine = "mjx"``, it is refused with MJX's reason
+and the way to the C engine.
+
 Measured by ``podilqr bench --sections engines`` on 2 cores
 (benchmarks/journal.md): the rule picks the faster engine on 18 of the 20
 models there. The two it misses, dm_control's acrobot and cart-pole (RK4, 2
@@ -30,7 +37,8 @@ from typing import Optional
 import jax
 import mujoco
 
-from ..task.env import Env
+from ..errors import ModelLoadError
+from ..task.env import Env, MJXUnavailable
 from . import contacts
 from .native import NativeModel, native_model
 
@@ -40,12 +48,30 @@ SMALL_NV = 6
 
 def auto_engine(env: Env) -> str:
     """``mjx`` or ``native`` for ``env`` under ``engine = "auto"`` (module docstring)."""
-    if jax.default_backend() != "cpu" or jax.device_count() > 1:
-        return "mjx"
+    return _auto(env)[0]
+
+
+def _auto(env: Env) -> tuple[str, str]:
+    """The engine ``auto`` picks for ``env``, and why it is the C engine where the rule
+    picked MJX but MJX cannot convert the model ("" otherwise). MJX's copy is built only
+    where the rule picks MJX."""
+    if jax.default_backend() != "cpu":
+        if env.mjx_problem:
+            raise ModelLoadError(
+                f'{env.mjx_problem} JAX runs on {jax.default_backend().upper()} here, where `engine = "auto"` '
+                f"runs MJX; MuJoCo's C engine runs {env.name!r} on the host's CPU cores: set `engine` to 'native' "
+                "(--set engine=native), or run on a CPU (JAX_PLATFORMS=cpu)."
+            )
+        return "mjx", ""
     m = env.mj_model
-    smooth = not contacts.many_rows(contacts.constraint_rows(env.data.model))
+    smooth = not contacts.contact_rich(m)
     small = m.nv <= SMALL_NV and m.opt.integrator != mujoco.mjtIntegrator.mjINT_RK4
-    return "mjx" if smooth and small else "native"
+    if not (jax.device_count() > 1 or (smooth and small)):
+        return "native", ""
+    problem = env.mjx_models.get("jax", sensors=env.dims.sensors)
+    if isinstance(problem, MJXUnavailable):
+        return "native", f"MuJoCo's C engine runs {env.name!r} (engine auto): {problem.short}"
+    return "mjx", ""
 
 
 def resolve(setting: str, env: Env) -> str:
@@ -54,7 +80,11 @@ def resolve(setting: str, env: Env) -> str:
 
 
 def on_engine(env: Env, setting: str) -> Env:
-    """``env`` with its rollouts on the engine ``setting`` resolves to."""
-    engine = resolve(setting, env)
-    native: Optional[NativeModel] = native_model(env.mj_model) if engine == "native" else None
-    return env.on_engine(native)
+    """``env`` with its rollouts on the engine ``setting`` resolves to; MJX's
+    reason where ``mjx`` is asked of a model it cannot convert."""
+    engine, why = _auto(env) if setting == "auto" else (setting, "")
+    if engine == "mjx":
+        env.mjx_model()  # built here, or refused with MJX's reason (ModelLoadError)
+        return env.on_engine(None)
+    native: Optional[NativeModel] = native_model(env.mj_model)
+    return env.on_engine(native, (why,) if why else ())

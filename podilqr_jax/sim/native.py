@@ -14,9 +14,9 @@ physics runs in C.
 
 The carry of a native rollout is :class:`NativeData`: MuJoCo's full physical
 state (``mjSTATE_FULLPHYSICS``: time, qpos, qvel, act, mocap, userdata,
-plugin state) split into its time, qpos, qvel and the rest, so that
+plugin state) split into its time, qpos, qvel, act and the rest, so that
 ``rollout.state_of`` and ``rollout.with_state`` read and write x = [qpos,
-qvel] as they do on MJX data. Sensors are recomputed at the state after the
+qvel, act] as they do on MJX data. Sensors are recomputed at the state after the
 step (and after the process noise) by ``mj_forward``, as MJX's observe does.
 
 What differs from MJX, and by how much (tests/test_native.py, docs):
@@ -74,7 +74,7 @@ class NativeModel:
         self.model = mj_model
         self.threads = default_threads() if threads is None else int(threads)
         self.nstate = int(mujoco.mj_stateSize(mj_model, FULL))
-        self.nq, self.nv, self.nu = int(mj_model.nq), int(mj_model.nv), int(mj_model.nu)
+        self.nq, self.nv, self.nu, self.na = int(mj_model.nq), int(mj_model.nv), int(mj_model.nu), int(mj_model.na)
         self.nsensordata = int(mj_model.nsensordata)
         self._datas = [mujoco.MjData(mj_model) for _ in range(max(1, self.threads))]
         self._pool = mj_rollout.Rollout(nthread=self.threads if self.threads > 1 else 0)
@@ -145,31 +145,34 @@ def native_model(mj_model: mujoco.MjModel) -> NativeModel:
 
 @dataclasses.dataclass(frozen=True)
 class NativeData:
-    """A native rollout's carry: MuJoCo's full physical state in four parts
-    (time [1], qpos [nq], qvel [nv], the rest), with ``replace`` as MJX data has it."""
+    """A native rollout's carry: MuJoCo's full physical state in five parts
+    (time [1], qpos [nq], qvel [nv], act [na], the rest), with ``replace`` as MJX data has it."""
 
     time: jnp.ndarray
     qpos: jnp.ndarray
     qvel: jnp.ndarray
+    act: jnp.ndarray
     rest: jnp.ndarray
 
     def replace(self, **changes) -> "NativeData":
         return dataclasses.replace(self, **changes)
 
     def vector(self) -> jnp.ndarray:
-        return jnp.concatenate([self.time, self.qpos, self.qvel, self.rest], axis=-1)
+        return jnp.concatenate([self.time, self.qpos, self.qvel, self.act, self.rest], axis=-1)
 
     @staticmethod
-    def of_vector(s: jnp.ndarray, nq: int, nv: int) -> "NativeData":
-        return NativeData(s[..., :1], s[..., 1 : 1 + nq], s[..., 1 + nq : 1 + nq + nv], s[..., 1 + nq + nv :])
+    def of_vector(s: jnp.ndarray, native: "NativeModel") -> "NativeData":
+        q, v = 1 + native.nq, 1 + native.nq + native.nv
+        a = v + native.na
+        return NativeData(s[..., :1], s[..., 1:q], s[..., q:v], s[..., v:a], s[..., a:])
 
 
-jax.tree_util.register_dataclass(NativeData, data_fields=["time", "qpos", "qvel", "rest"], meta_fields=[])
+jax.tree_util.register_dataclass(NativeData, data_fields=["time", "qpos", "qvel", "act", "rest"], meta_fields=[])
 
 
 def start_data(native: NativeModel, dtype) -> NativeData:
     """The carry of a fresh ``MjData`` (the rollout writes its start state into it)."""
-    return NativeData.of_vector(jnp.asarray(native.template, dtype=dtype), native.nq, native.nv)
+    return NativeData.of_vector(jnp.asarray(native.template, dtype=dtype), native)
 
 
 def step(native: NativeModel, substeps: int, d: NativeData, u: jnp.ndarray) -> NativeData:
@@ -182,7 +185,7 @@ def step(native: NativeModel, substeps: int, d: NativeData, u: jnp.ndarray) -> N
         return native.step(np.asarray(s_np), np.asarray(u_np), substeps).astype(s_np.dtype)
 
     s_next = jax.pure_callback(host, out, s, u.astype(s.dtype), vmap_method="broadcast_all")
-    return NativeData.of_vector(s_next, native.nq, native.nv)
+    return NativeData.of_vector(s_next, native)
 
 
 def sensordata(native: NativeModel, d: NativeData) -> jnp.ndarray:

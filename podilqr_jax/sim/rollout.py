@@ -58,9 +58,10 @@ from mujoco import mjx
 
 from ..compilation import xla_options
 from ..compilation.stages import stage
+from ..errors import ModelLoadError
 from ..identify.info_state import initial_info_state, shift
 from ..task import tangent
-from ..task.env import EnvData, EnvDims
+from ..task.env import EnvData, EnvDims, MJXUnavailable
 from ..task.noise import Disturbance, sample
 from . import native, rk4
 
@@ -103,6 +104,7 @@ def physics_step(dims: EnvDims, model, d, u: jnp.ndarray, mj_step=None):
     """
     if dims.native is not None:
         return native.step(dims.native, dims.substeps, d, u)
+    _runs_on_mjx(model)
     if mj_step is None:
         mj_step = rk4.step if rk4.applies(model) else mjx.step
 
@@ -115,7 +117,14 @@ def physics_step(dims: EnvDims, model, d, u: jnp.ndarray, mj_step=None):
 def make_data(model):
     """``mjx.make_data`` for ``model`` in the model's own MJX implementation
     (``jax`` or ``warp``, see ``SolverConfig.impl``)."""
+    _runs_on_mjx(model)
     return mjx.make_data(model, impl=getattr(model, "impl", None))
+
+
+def _runs_on_mjx(model) -> None:
+    """Refuse, with MJX's reason, a model MJX cannot convert (``task.env.MJXUnavailable``)."""
+    if isinstance(model, MJXUnavailable):
+        raise ModelLoadError(model.message)
 
 
 def start_data(dims: EnvDims, data: EnvData):
@@ -145,11 +154,16 @@ def observations_of(dims: EnvDims, data: EnvData, x: jnp.ndarray) -> jnp.ndarray
 
 
 def state_of(d) -> jnp.ndarray:
-    return jnp.concatenate([d.qpos, d.qvel])
+    """x = [qpos, qvel, act] of ``d`` (``act`` is empty on a model without activations)."""
+    return jnp.concatenate([d.qpos, d.qvel, d.act])
 
 
 def with_state(dims: EnvDims, d, x: jnp.ndarray):
-    return d.replace(qpos=x[: dims.nq], qvel=x[dims.nq :])
+    """``d`` at the state x = [qpos, qvel, act]."""
+    nq, nv = dims.nq, dims.nv
+    if not dims.na:
+        return d.replace(qpos=x[:nq], qvel=x[nq:])
+    return d.replace(qpos=x[:nq], qvel=x[nq : nq + nv], act=x[nq + nv :])
 
 
 @dataclasses.dataclass(frozen=True)

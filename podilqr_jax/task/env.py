@@ -1,7 +1,8 @@
 """A control task on a MuJoCo model: dynamics, observation, cost, start, target.
 
 Notation (shapes):
-  x = [qpos, qvel]            state, [nx] with nx = nq + nv
+  x = [qpos, qvel, act]       state, [nx] with nx = nq + nv + na (act: the activations of
+                              actuators with dynamics, MuJoCo's ``act``; na = 0 on most models)
   z = C x + D s(x)            observation, [nz]: joint coordinates (rows of C)
                               and named MuJoCo sensors s = ``sensordata`` (rows
                               of D; only when ``EnvDims.sensors``)
@@ -15,6 +16,13 @@ Notation (shapes):
 An :class:`Env` splits into hashable static dimensions (:class:`EnvDims`, used
 as a static jit argument: changing them recompiles) and a pytree of arrays
 (:class:`EnvData`, traced: changing the values never recompiles).
+
+A task needs only what MuJoCo compiles. MJX's copy of the model is built the
+first time the task's data is read on the MJX engine (``Env.data``), and kept;
+a model MJX cannot convert (a geom pair without an MJX collision function, the
+implicit integrator, a sensor MJX does not compute, ...) loads all the same and
+runs on MuJoCo's C engine (``sim.engines``). Where MJX is asked for such a model
+it refuses with MJX's reason (:class:`MJXUnavailable`).
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import os
+import threading
 from typing import Any, Mapping, NamedTuple
 
 import jax
@@ -53,15 +62,17 @@ class EnvDims:
     # The engine of the rollouts: None for MJX, or the ``sim.native.NativeModel``
     # that runs them in MuJoCo's C engine (hashed by identity; ``Env.on_engine``).
     native: Any = dataclasses.field(default=None, repr=False)
+    # Activations in the state: actuators with dynamics (filter, integrator, muscle) carry MuJoCo's ``act``.
+    na: int = 0
 
     @property
     def nx(self) -> int:
-        return self.nq + self.nv
+        return self.nq + self.nv + self.na
 
     @property
     def ndx(self) -> int:
-        """The size of a state deviation, 2 nv (``task.tangent``; nx where nq == nv)."""
-        return 2 * self.nv
+        """The size of a state deviation, 2 nv + na (``task.tangent``; nx where nq == nv)."""
+        return 2 * self.nv + self.na
 
     @property
     def engine(self) -> str:
@@ -73,15 +84,17 @@ class EnvDims:
         sizes = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "native"}
         if not self.quats:
             del sizes["quats"]  # a hinge-and-slide checkpoint keeps the fingerprint it was written with
+        if not self.na:
+            del sizes["na"]  # so does one of a model without activations
         return sizes if self.native is None else sizes | {"engine": self.engine}
 
 
 class EnvData(NamedTuple):
     """Traced arrays of a task."""
 
-    model: Any  # mjx.Model
+    model: Any  # mjx.Model on the MJX engine; None on the native one; MJXUnavailable where MJX cannot convert it
     C: jnp.ndarray  # [nz, nx] observation matrix (zero rows for sensor channels)
-    x0: jnp.ndarray  # [nx] start state (qpos, qvel)
+    x0: jnp.ndarray  # [nx] start state (qpos, qvel, act)
     z_target: jnp.ndarray  # [nz]
     Q: jnp.ndarray  # [nz, nz] running cost on the observation error
     QT: jnp.ndarray  # [nz, nz] terminal cost
@@ -104,13 +117,21 @@ class Env:
     name: str
     mj_model: mujoco.MjModel
     dims: EnvDims
-    data: EnvData
+    arrays: EnvData  # the task's arrays, the MJX model left out (None) until MJX runs: read ``data``
     observation_labels: tuple[str, ...]
     control_dt: float
     solver_defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     noise: NoiseModel = NoiseModel()
     observation: Any = None  # the observation as given (kept by ``replace``)
-    model_notes: tuple[str, ...] = ()  # options switched off on the MJX copy (``mjx_model_of``)
+    # One line per choice made for the engine the rollouts run on: the options switched off on MJX's copy
+    # (``mjx_notes``), or why ``engine = "auto"`` runs the C engine (``sim.engines.on_engine``).
+    model_notes: tuple[str, ...] = ()
+    # MJX's copy of ``mj_model`` per implementation, built once and shared by the copies of this task.
+    mjx_models: "MJXModels" = dataclasses.field(default=None, repr=False)
+
+    def __post_init__(self):
+        if self.mjx_models is None:
+            object.__setattr__(self, "mjx_models", MJXModels(self.mj_model, self.name))
 
     # ----------------------------------------------------------------- building
     @classmethod
@@ -142,12 +163,13 @@ class Env:
             names and whose sensors are names of the model's ``<sensor>``
             elements (position or velocity stage: ``jointpos``, ``framepos``,
             ``framequat``, ``jointvel``, ``velocimeter``, ...), or a matrix
-            ``C`` of shape ``[nz, nq + nv]`` with full row rank.
+            ``C`` of shape ``[nz, nx]`` with full row rank (nx = nq + nv + na,
+            the activations ``act`` last where some actuator has dynamics).
           substeps: physics steps per control step (control dt = substeps x
             the model's timestep).
           horizon: number of control steps T.
-          x0: start state: a mapping ``{"qpos": [...], "qvel": [...]}`` or a
-            vector of length nq + nv. Default: the model's ``qpos0`` at rest.
+          x0: start state: a mapping ``{"qpos": [...], "qvel": [...], "act": [...]}``
+            or a vector of length nx. Default: the model's ``qpos0`` at rest (and act 0).
           target: target observation z*, length nz. Default: the start's.
           Q, QT: running and terminal cost on the observation error: a scalar
             (times identity), a diagonal (length nz) or a matrix [nz, nz];
@@ -216,13 +238,10 @@ class Env:
             )
         _check_int("substeps", substeps, minimum=1)
         _check_int("horizon", horizon, minimum=1)
-        mjx_model, notes = mjx_model_of(mj_model, name)
 
         obs = _observation_matrix(mj_model, observation)
         C, labels = obs.C, obs.labels
         nz = C.shape[0]
-        if obs.sensors:
-            _check_sensors_run(mjx_model, name)
         u_low, u_high = control_limits(mj_model)
         x0_vec = _start_state(mj_model, x0)
         if target is None:
@@ -243,9 +262,10 @@ class Env:
             horizon=int(horizon),
             sensors=obs.sensors,
             quats=quaternions(mj_model),
+            na=int(mj_model.na),
         )
-        data = EnvData(
-            model=mjx_model,
+        arrays = EnvData(
+            model=None,  # MJX's copy is built when MJX runs (``data``)
             C=jnp.asarray(C),
             x0=jnp.asarray(x0_vec),
             z_target=jnp.asarray(target_vec),
@@ -262,14 +282,39 @@ class Env:
             name=name,
             mj_model=mj_model,
             dims=dims,
-            data=data,
+            arrays=arrays,
             observation_labels=labels,
             control_dt=float(mj_model.opt.timestep) * int(substeps),
             solver_defaults=dict(solver_defaults or {}),
             noise=noise_model,
             observation=observation,
-            model_notes=notes,
+            model_notes=mjx_notes(mj_model),
         )
+
+    # ------------------------------------------------------------------ the data
+    @property
+    def data(self) -> EnvData:
+        """The task's arrays as its engine's rollouts take them: on MJX with
+        MJX's copy of the model (built on the first read, then kept), on the
+        native engine with none. Where MJX cannot convert the model the model
+        field is an :class:`MJXUnavailable`, which refuses to run with MJX's reason."""
+        if self.dims.native is not None or self.arrays.model is not None:
+            return self.arrays
+        return self.arrays._replace(model=self.mjx_models.get("jax", sensors=self.dims.sensors))
+
+    def mjx_model(self, impl: str = "jax"):
+        """MJX's copy of the model in implementation ``impl`` (``SolverConfig.impl``);
+        a :class:`ModelLoadError` with MJX's reason where MJX cannot convert it."""
+        model = self.mjx_models.get(impl, sensors=self.dims.sensors)
+        if isinstance(model, MJXUnavailable):
+            raise ModelLoadError(model.message)
+        return model
+
+    @property
+    def mjx_problem(self) -> str:
+        """Why MJX cannot run this task ("" where it can; builds MJX's copy to find out)."""
+        model = self.mjx_models.get("jax", sensors=self.dims.sensors)
+        return model.reason if isinstance(model, MJXUnavailable) else ""
 
     # --------------------------------------------------------------- variations
     def replace(self, **changes: Any) -> "Env":
@@ -280,7 +325,7 @@ class Env:
         unknown = set(changes) - allowed
         if unknown:
             raise TaskError(f"Env.replace got unknown field(s) {sorted(unknown)}; allowed: {sorted(allowed)}.")
-        d = self.data
+        d = self.arrays
         kwargs = dict(
             observation=np.asarray(d.C) if self.observation is None else self.observation,
             substeps=self.dims.substeps,
@@ -296,22 +341,28 @@ class Env:
         )
         kwargs.update(changes)
         env = Env.from_model(self.mj_model, **kwargs)
-        env = dataclasses.replace(env, observation_labels=self.observation_labels).on_engine(self.dims.native)
-        goal = int(self.data.goal_step)
+        env = dataclasses.replace(
+            env, observation_labels=self.observation_labels, mjx_models=self.mjx_models, model_notes=self.model_notes
+        ).on_engine(self.dims.native)
+        goal = int(self.arrays.goal_step)
         return env if goal == self.dims.horizon or "horizon" in changes else env.with_goal_step(goal)
 
-    def on_engine(self, native) -> "Env":
+    def on_engine(self, native, notes: tuple[str, ...] | None = None) -> "Env":
         """A copy whose rollouts run on ``native`` (a ``sim.native.NativeModel``
-        of this task's model), or on MJX with None (``SolverConfig.engine``)."""
-        return dataclasses.replace(self, dims=dataclasses.replace(self.dims, native=native))
+        of this task's model), or on MJX with None (``SolverConfig.engine``);
+        ``notes`` replace ``model_notes`` (default: MJX's where MJX runs, none on the C engine)."""
+        if notes is None:
+            notes = mjx_notes(self.mj_model) if native is None else ()
+        dims = dataclasses.replace(self.dims, native=native)
+        return dataclasses.replace(self, dims=dims, arrays=self.arrays._replace(model=None), model_notes=tuple(notes))
 
     def with_start_state(self, x0) -> "Env":
-        """A copy starting from the state ``x0`` = [qpos, qvel] (the same MJX
+        """A copy starting from the state ``x0`` = [qpos, qvel, act] (the same MJX
         model and cost; traced, so solving from it never recompiles)."""
         x = np.asarray(x0, dtype=float)
         if x.shape != (self.dims.nx,) or not np.all(np.isfinite(x)):
-            raise TaskError(f"`x0` must be {self.dims.nx} finite numbers (qpos then qvel); got {x0!r}.")
-        return dataclasses.replace(self, data=self.data._replace(x0=jnp.asarray(x, self.data.x0.dtype)))
+            raise TaskError(f"`x0` must be {self.dims.nx} finite numbers (qpos, qvel, act); got {x0!r}.")
+        return dataclasses.replace(self, arrays=self.arrays._replace(x0=jnp.asarray(x, self.arrays.x0.dtype)))
 
     def with_goal_step(self, step: int) -> "Env":
         """A copy whose running cost uses QT from step ``step`` on: the target
@@ -321,7 +372,7 @@ class Env:
         T = self.dims.horizon
         if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or not 0 <= step <= T:
             raise TaskError(f"`goal_step` must be an integer in 0 .. horizon = {T}; got {step!r}.")
-        return dataclasses.replace(self, data=self.data._replace(goal_step=jnp.asarray(int(step))))
+        return dataclasses.replace(self, arrays=self.arrays._replace(goal_step=jnp.asarray(int(step))))
 
     def full_state_view(self) -> "Env":
         """The same task seen through the full state x (C = I).
@@ -337,20 +388,21 @@ class Env:
                 "the model-based reference needs a cost on the state (observe joints or a matrix C). "
                 "POD-iLQR itself solves it (podilqr solve without --compare or --method model-based)."
             )
-        C = np.asarray(self.data.C)
+        a = self.arrays
+        C = np.asarray(a.C)
         nx = self.dims.nx
-        x_target = np.linalg.pinv(C) @ np.asarray(self.data.z_target)
-        data = self.data._replace(
+        x_target = np.linalg.pinv(C) @ np.asarray(a.z_target)
+        arrays = a._replace(
             C=jnp.eye(nx),
             z_target=jnp.asarray(x_target),
-            Q=jnp.asarray(C.T @ np.asarray(self.data.Q) @ C),
-            QT=jnp.asarray(C.T @ np.asarray(self.data.QT) @ C),
-            noise=self.data.noise._replace(v=jnp.zeros(nx)),
-            D=jnp.zeros((nx, self.data.D.shape[1])),
+            Q=jnp.asarray(C.T @ np.asarray(a.Q) @ C),
+            QT=jnp.asarray(C.T @ np.asarray(a.QT) @ C),
+            noise=a.noise._replace(v=jnp.zeros(nx)),
+            D=jnp.zeros((nx, a.D.shape[1])),
         )
         dims = dataclasses.replace(self.dims, nz=nx)
         labels = _state_labels(self.mj_model)
-        return dataclasses.replace(self, dims=dims, data=data, observation_labels=labels)
+        return dataclasses.replace(self, dims=dims, arrays=arrays, observation_labels=labels)
 
     @property
     def state_labels(self) -> tuple[str, ...]:
@@ -360,12 +412,12 @@ class Env:
     def limited(self) -> bool:
         """True when some actuator has a ctrlrange (rollouts clamp to it and
         the backward pass solves a box-constrained QP, see ``backward``)."""
-        bounds = np.concatenate([np.asarray(self.data.u_low), np.asarray(self.data.u_high)])
+        bounds = np.concatenate([np.asarray(self.arrays.u_low), np.asarray(self.arrays.u_high)])
         return bool(np.any(np.isfinite(bounds)))
 
     @property
     def fully_observed(self) -> bool:
-        """True when the observation has as many entries as the state (nz == nq + nv):
+        """True when the observation has as many entries as the state (nz == nx):
         the default information state then holds one measurement (q = 1)."""
         return self.dims.nz == self.dims.nx
 
@@ -394,64 +446,121 @@ _REPORTING_ONLY = (
 _MJX_INTEGRATORS = tuple(int(getattr(mujoco.mjtIntegrator, f"mjINT_{i}")) for i in ("EULER", "RK4", "IMPLICITFAST"))
 
 
+def mjx_notes(mj_model: mujoco.MjModel) -> tuple[str, ...]:
+    """A note per option of ``mj_model`` that MJX's copy switches off (``mjx_model_of``), from the model's flags."""
+    notes = [
+        f"MuJoCo's `{flag}` flag is switched off for MJX, which does not implement it ({why})"
+        for bit, flag, why in _REPORTING_ONLY
+        if mj_model.opt.enableflags & int(bit)
+    ]
+    if mj_model.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
+        notes.append(
+            "the constraint solver PGS is replaced by Newton for MJX, which has no PGS "
+            "(both solve the same convex constraint problem)"
+        )
+    return tuple(notes)
+
+
 def mjx_model_of(mj_model: mujoco.MjModel, name: str = "model", impl: str = "jax") -> tuple[Any, tuple[str, ...]]:
     """The ``mjx.Model`` of ``mj_model`` (MJX implementation ``impl``) and a note per option switched off.
 
     MJX refuses some MuJoCo options that do not change the dynamics; those are
     switched off on a copy (``mj_model`` itself is left as it is), each with a
-    one-line note (``Env.model_notes``, ``Result.warnings``, the CLI's output):
+    one-line note (``mjx_notes``, ``Env.model_notes``, ``Result.warnings``, the CLI's output):
 
     - ``<flag energy="enable">`` and ``<flag fwdinv="enable">``: reporting only;
     - ``solver="PGS"``: replaced by ``Newton``, which solves the same convex
       constraint problem (the forces agree to the solvers' tolerance).
 
     A feature that changes the dynamics and that MJX cannot simulate (an
-    integrator other than Euler, RK4 and implicitfast; actuators with
-    activation state, whose ``act`` is not part of the task's state
-    [qpos, qvel]; a geom pair without collision function; flex; ...) is
-    refused with a :class:`ModelLoadError` that names it.
+    integrator other than Euler, RK4 and implicitfast; a geom pair without
+    collision function; flex; ...) raises a :class:`ModelLoadError` that names
+    it. ``Env`` catches it: such a model runs on MuJoCo's C engine.
     """
     m = copy.deepcopy(mj_model)
-    notes = []
-    for bit, flag, why in _REPORTING_ONLY:
-        if m.opt.enableflags & int(bit):
-            m.opt.enableflags &= ~int(bit)
-            notes.append(f"MuJoCo's `{flag}` flag is switched off for MJX, which does not implement it ({why})")
+    for bit, _, _ in _REPORTING_ONLY:
+        m.opt.enableflags &= ~int(bit)
     if m.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
         m.opt.solver = int(mujoco.mjtSolver.mjSOL_NEWTON)
-        notes.append(
-            "the constraint solver PGS is replaced by Newton for MJX, which has no PGS "
-            "(both solve the same convex constraint problem)"
-        )
     if m.opt.integrator not in _MJX_INTEGRATORS:
         integrator = mujoco.mjtIntegrator(m.opt.integrator).name[6:].lower()
         raise ModelLoadError(
             f"MJX cannot simulate the model {name!r}: its integrator is {integrator!r}, and MJX steps only "
-            "'Euler', 'RK4' and 'implicitfast'. Set <option integrator=\"implicitfast\"/> (or RK4) in the MJCF "
-            "file; this changes the discrete-time dynamics slightly."
+            "'Euler', 'RK4' and 'implicitfast'. To run it on MJX, set <option integrator=\"implicitfast\"/> (or "
+            "RK4) in the MJCF file; this changes the discrete-time dynamics slightly."
         )
     try:
         # This process's first device (MJX's default, jax.devices()[0], is process 0's under jax.distributed).
         mjx_model = mjx.put_model(m, impl=impl, device=jax.local_devices()[0])
     except Exception as exc:
         raise ModelLoadError(
-            f"MJX cannot load the model {name!r}: {type(exc).__name__}: {exc}. MJX supports a subset of "
-            "MuJoCo (no flex; a subset of the geom pairs, sensors, actuators and options); remove "
-            "or replace the feature it names (for a geom pair: contype/conaffinity = 0 on one of them)."
+            f"MJX cannot load the model {name!r}: {type(exc).__name__}: {str(exc).rstrip('.')}. MJX supports a "
+            "subset of MuJoCo (no flex; a subset of the geom pairs, sensors, actuators and options); to run it on MJX, "
+            "remove or replace the feature it names (for a geom pair: contype/conaffinity = 0 on one of them)."
         ) from None
-    if m.na:
-        stateful = [
-            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator {i}"
-            for i in range(m.nu)
-            if m.actuator_dyntype[i] != mujoco.mjtDyn.mjDYN_NONE
-        ]
-        listed = ", ".join(stateful[:5]) + (f" and {len(stateful) - 5} more" if len(stateful) > 5 else "")
-        raise TaskError(
-            f"The model {name!r} has actuators with activation dynamics ({listed}: dyntype integrator, "
-            "filter or muscle); their activation `act` is a state that the task's state [qpos, qvel] does "
-            "not hold. Use actuators without dynamics (motor, position, velocity, general with dyntype none)."
+    return mjx_model, mjx_notes(mj_model)
+
+
+@dataclasses.dataclass(frozen=True)
+class MJXUnavailable:
+    """Stands in ``EnvData.model`` for a model MJX cannot convert: an empty
+    pytree (nothing is traced) that refuses, with MJX's reason, where MJX
+    would run (``sim.rollout.make_data``)."""
+
+    reason: str  # MJX's refusal, one paragraph (``mjx_model_of``)
+    name: str  # the task's name
+
+    @property
+    def message(self) -> str:
+        return (
+            f"{self.reason} MuJoCo's C engine runs the model as it is: set `engine` to 'native' (a task "
+            "file's [solver] table, --set engine=native, or SolverConfig(engine='native')), or leave it 'auto' "
+            "on a CPU."
         )
-    return mjx_model, tuple(notes)
+
+    @property
+    def short(self) -> str:
+        """MJX's refusal in a clause (its first sentence)."""
+        return self.reason.split(". ")[0].rstrip(".")
+
+
+jax.tree_util.register_pytree_node(
+    MJXUnavailable, lambda u: ((), (u.reason, u.name)), lambda aux, _: MJXUnavailable(*aux)
+)
+
+
+class MJXModels:
+    """MJX's copies of one MuJoCo model, built on first use per implementation
+    (``jax``, ``warp``) and shared by the copies of a task (``Env.replace`` and
+    the like); a model MJX cannot convert is kept as its :class:`MJXUnavailable`."""
+
+    def __init__(self, mj_model: mujoco.MjModel, name: str):
+        self.mj_model, self.name = mj_model, name
+        self._models: dict[tuple[str, bool], Any] = {}
+        self._lock = threading.Lock()
+
+    def get(self, impl: str = "jax", sensors: bool = False):
+        """MJX's copy in ``impl``, or its :class:`MJXUnavailable`; with ``sensors``, also
+        checked to compute the model's sensors (the observation reads them)."""
+        with self._lock:
+            key = (impl, bool(sensors))
+            if key not in self._models:
+                self._models[key] = self._build(impl, sensors)
+            return self._models[key]
+
+    def built(self, impl: str = "jax", sensors: bool = False):
+        """What :meth:`get` returns, where it has been built already; else None (nothing is built)."""
+        with self._lock:
+            return self._models.get((impl, bool(sensors)))
+
+    def _build(self, impl: str, sensors: bool):
+        try:
+            model, _ = mjx_model_of(self.mj_model, self.name, impl=impl)
+            if sensors:
+                _check_sensors_run(model, self.name)
+        except ModelLoadError as exc:
+            return MJXUnavailable(str(exc), self.name)
+        return model
 
 
 # --------------------------------------------------------------------- helpers
@@ -462,8 +571,8 @@ def _check_sensors_run(mjx_model, name: str) -> None:
         jax.eval_shape(mjx.forward, mjx_model, mjx.make_data(mjx_model))
     except Exception as exc:
         raise ModelLoadError(
-            f"MJX cannot compute the sensors of {name!r}: {type(exc).__name__}: {exc}. Observe joints "
-            "(qpos/qvel) or another sensor type instead."
+            f"MJX cannot compute the sensors of {name!r}: {type(exc).__name__}: {exc}. To run it on MJX, observe "
+            "joints (qpos/qvel) or another sensor type instead."
         ) from None
 
 
@@ -485,6 +594,11 @@ def _state_labels(m: mujoco.MjModel) -> tuple[str, ...]:
             for w in range(width):
                 names[adr_of[j] + w] = f"{kind}:{jname}" + (f"[{w}]" if width > 1 else "")
         labels += names
+    for i in range(m.nu):  # the activations, in MuJoCo's act order (actuators with dynamics)
+        if m.actuator_actadr[i] >= 0:
+            aname = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"actuator{i}"
+            width = int(m.actuator_actnum[i])
+            labels += [f"act:{aname}" + (f"[{w}]" if width > 1 else "") for w in range(width)]
     return tuple(labels)
 
 
@@ -565,7 +679,7 @@ def _sensor_rows(m: mujoco.MjModel, entry: Any) -> tuple[list[np.ndarray], list[
 
 def _observation_matrix(m: mujoco.MjModel, observation: Any) -> Observation:
     nq, nv = m.nq, m.nv
-    nx = nq + nv
+    nx = nq + nv + m.na
     labels_all = _state_labels(m)
     if isinstance(observation, str):
         if observation == "full":
@@ -575,7 +689,7 @@ def _observation_matrix(m: mujoco.MjModel, observation: Any) -> Observation:
         else:
             raise TaskError(
                 f"Unknown observation {observation!r}; use 'full', 'qpos', a mapping "
-                "{'qpos': [...], 'qvel': [...], 'sensors': [...]} or a matrix C of shape [nz, nq + nv]."
+                "{'qpos': [...], 'qvel': [...], 'sensors': [...]} or a matrix C of shape [nz, nx] (nx = nq + nv + na)."
             )
         C = np.eye(nx)[rows]
         return Observation(C, np.zeros((len(rows), m.nsensordata)), tuple(labels_all[r] for r in rows), False)
@@ -614,11 +728,12 @@ def _observation_matrix(m: mujoco.MjModel, observation: Any) -> Observation:
         C = np.asarray(observation, dtype=float)
     except (TypeError, ValueError):
         raise TaskError(
-            f"The observation must be 'full', 'qpos', a mapping or a matrix C [nz, nq + nv]; got {observation!r}."
+            f"The observation must be 'full', 'qpos', a mapping or a matrix C [nz, nx]; got {observation!r}."
         ) from None
     if C.ndim != 2 or C.shape[1] != nx or C.shape[0] < 1:
         raise TaskError(
-            f"The observation matrix C must have shape [nz, nq + nv] = [nz, {nx}] with nz >= 1; got shape {C.shape}."
+            f"The observation matrix C must have shape [nz, {'nq + nv + na' if m.na else 'nq + nv'}] = [nz, {nx}] "
+            f"with nz >= 1; got shape {C.shape}."
         )
     if not np.all(np.isfinite(C)):
         raise TaskError("The observation matrix C holds non-finite numbers; use finite values.")
@@ -663,17 +778,21 @@ def _vector(name: str, value: Any, n: int, what: str) -> np.ndarray:
 
 
 def _start_state(m: mujoco.MjModel, x0: Any) -> np.ndarray:
-    nq, nv = m.nq, m.nv
+    nq, nv, na = m.nq, m.nv, m.na
     if x0 is None:
-        return np.concatenate([np.array(m.qpos0, dtype=float), np.zeros(nv)])
+        return np.concatenate([np.array(m.qpos0, dtype=float), np.zeros(nv + na)])
     if isinstance(x0, Mapping):
-        unknown = set(x0) - {"qpos", "qvel"}
+        allowed = {"qpos", "qvel"} | ({"act"} if na else set())
+        unknown = set(x0) - allowed
         if unknown:
-            raise TaskError(f"`x0` has unknown key(s) {sorted(unknown)}; use 'qpos' and 'qvel'.")
+            keys = " and ".join(map(repr, sorted(allowed)))
+            raise TaskError(f"`x0` has unknown key(s) {sorted(unknown)}; use {keys}.")
         qpos = _vector("x0.qpos", x0["qpos"], nq, "nq") if "qpos" in x0 else np.array(m.qpos0, dtype=float)
         qvel = _vector("x0.qvel", x0["qvel"], nv, "nv") if "qvel" in x0 else np.zeros(nv)
-        return np.concatenate([qpos, qvel])
-    return _vector("x0", x0, nq + nv, "nq + nv: qpos then qvel")
+        act = _vector("x0.act", x0["act"], na, "na, the activations") if "act" in x0 else np.zeros(na)
+        return np.concatenate([qpos, qvel, act])
+    what = "nq + nv: qpos then qvel" if not na else "nq + nv + na: qpos, qvel, then the activations act"
+    return _vector("x0", x0, nq + nv + na, what)
 
 
 def _cost_matrix(name: str, value: Any, n: int, what: str, definite: bool) -> np.ndarray:

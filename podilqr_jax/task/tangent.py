@@ -1,20 +1,21 @@
 """Deviations of the state in its tangent space (free and ball joints).
 
-The state x = [qpos, qvel] has nq + nv numbers, but the orientation of a free
+The state x = [qpos, qvel, act] has nq + nv + na numbers (``act``: actuator
+activations, na = 0 on most models), but the orientation of a free
 or ball joint is a unit quaternion: four numbers for three degrees of freedom.
 Adding a deviation to those four numbers leaves the unit sphere, and a
 difference of two quaternions is no rotation. So wherever the package forms a
 state deviation (the start-state and process noise of a rollout, the columns
-of the model-based linearisation) it works in the tangent space, 2 nv numbers
-dx = [dq, dv], as MuJoCo does:
+of the model-based linearisation) it works in the tangent space, 2 nv + na numbers
+dx = [dq, dv, da], as MuJoCo does:
 
   x (+) dx   qpos moved by dq as ``mj_integratePos`` moves it (a quaternion q
              becomes q exp(dq_r / 2), rotated by dq_r in its own body's frame),
-             qvel + dv;
+             qvel + dv, act + da;
   x1 (-) x0  the dx with x0 (+) dx = x1, as ``mj_differentiatePos`` forms it.
 
 The maps between the two at a state x are its ``basis`` J (d(x (+) dx)/d dx at
-dx = 0, [nx, 2 nv]) and ``cobasis`` J+ (d(x (-) x0)/dx at x = x0, [2 nv, nx]),
+dx = 0, [nx, ndx]) and ``cobasis`` J+ (d(x (-) x0)/dx at x = x0, [ndx, nx]),
 with J+ J = I.
 
 On a model of hinges and slides (``EnvDims.quats`` empty, nq == nv) these are
@@ -102,12 +103,12 @@ def rotation_between(q1, q0):
 
 
 def integrate(dims, x, dx):
-    """x (+) dx over leading axes: x [..., nq + nv], dx [..., 2 nv]."""
+    """x (+) dx over leading axes: x [..., nx], dx [..., ndx] (the velocities and activations add)."""
     if not dims.quats:
         return x + dx
     nq, nv = dims.nq, dims.nv
     lin_q, lin_v = _linear(nq, nv, dims.quats)
-    qpos, qvel = x[..., :nq], x[..., nq:]
+    qpos, qvel = x[..., :nq], x[..., nq:]  # qvel: the velocities and the activations
     dq, dv = dx[..., :nv], dx[..., nv:]
     qpos = qpos.at[..., lin_q].add(dq[..., lin_v])
     for qa, va in dims.quats:
@@ -116,7 +117,7 @@ def integrate(dims, x, dx):
 
 
 def difference(dims, x1, x0):
-    """x1 (-) x0 over leading axes: [..., 2 nv]."""
+    """x1 (-) x0 over leading axes: [..., ndx]."""
     if not dims.quats:
         return x1 - x0
     nq, nv = dims.nq, dims.nv
@@ -130,23 +131,24 @@ def difference(dims, x1, x0):
 
 
 def basis(dims, x):
-    """J = d(x (+) dx)/d dx at dx = 0: [..., nq + nv, 2 nv] (a quaternion q's
+    """J = d(x (+) dx)/d dx at dx = 0: [..., nx, ndx] (a quaternion q's
     block is d(q exp(r / 2))/dr = q [0, I/2], its product matrix's last
     three columns halved)."""
-    nq, nv = dims.nq, dims.nv
+    nq, nv, nx = dims.nq, dims.nv, dims.nx
     if not dims.quats:
-        return jnp.broadcast_to(jnp.eye(nq + nv, dtype=x.dtype), x.shape[:-1] + (nq + nv, nq + nv))
+        return jnp.broadcast_to(jnp.eye(nx, dtype=x.dtype), x.shape[:-1] + (nx, nx))
     lin_q, lin_v = _linear(nq, nv, dims.quats)
-    J = jnp.zeros(x.shape[:-1] + (nq + nv, 2 * nv), x.dtype)
+    tail = nx - nq  # the velocities and the activations: they add
+    J = jnp.zeros(x.shape[:-1] + (nx, dims.ndx), x.dtype)
     J = J.at[..., lin_q, lin_v].set(1.0)
-    J = J.at[..., nq + np.arange(nv), nv + np.arange(nv)].set(1.0)
+    J = J.at[..., nq + np.arange(tail), nv + np.arange(tail)].set(1.0)
     for qa, va in dims.quats:
         J = J.at[..., qa : qa + 4, va : va + 3].set(0.5 * _left(_unit(x[..., qa : qa + 4]))[..., :, 1:])
     return J
 
 
 def cobasis(dims, x):
-    """J+ = d(x (-) x0)/dx at x = x0: [..., 2 nv, nq + nv], with J+ J = I (a
+    """J+ = d(x (-) x0)/dx at x = x0: [..., ndx, nx], with J+ J = I (a
     quaternion's block is 2 [0, I] q*, the rows of J's block transposed, times 4)."""
     P = jnp.swapaxes(basis(dims, x), -1, -2)
     for qa, va in dims.quats:

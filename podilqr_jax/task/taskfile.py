@@ -15,7 +15,7 @@ task file; see docs/task_files.md for a worked example)::
     qvel = []
     # C = [[1.0, 0.0]]            # or an explicit matrix [nz, nq + nv]
 
-    [start]                       # x0; default: the model's qpos0 at rest
+    [start]                       # x0; default: the model's qpos0 at rest (act 0)
     qpos = [3.14159]
     qvel = [0.0]
 
@@ -106,9 +106,10 @@ def task_from_spec(spec: dict[str, Any], base_dir: str, default_name: str = "tas
         kwargs["observation"] = obs["C"] if isinstance(obs, dict) and set(obs) == {"C"} else obs
     if "start" in spec:
         start = spec["start"]
-        if isinstance(start, dict) and set(start) - {"qpos", "qvel"}:
+        if isinstance(start, dict) and set(start) - {"qpos", "qvel", "act"}:
             raise TaskError(
-                f"[start] has unknown key(s) {sorted(set(start) - {'qpos', 'qvel'})}; it takes `qpos` and `qvel`. "
+                f"[start] has unknown key(s) {sorted(set(start) - {'qpos', 'qvel', 'act'})}; it takes `qpos`, "
+                "`qvel` and (on a model whose actuators have activation dynamics) `act`. "
                 "In TOML, keys written after a [table] header belong to that table: put top-level keys "
                 "such as `target` before the first [table]."
             )
