@@ -83,6 +83,7 @@ def test_auto_says_why_it_runs_the_c_engine_where_mjx_would_have_been_picked():
     assert on.dims.engine == "native"
     (note,) = on.model_notes
     assert "C engine runs" in note and "integrator is 'implicit'" in note
+    assert on.replace(horizon=5).model_notes == on.model_notes  # a copy of the task keeps why
     with pytest.raises(pj.ModelLoadError, match="integrator is 'implicit'.*implicitfast.*'native'"):
         engines.on_engine(env, "mjx")
     result = pj.solve(env.replace(horizon=4, target=[0.3, 0.0]), pj.SolverConfig(max_iterations=3))

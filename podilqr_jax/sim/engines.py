@@ -32,15 +32,13 @@ few hundred iterations that gain is of the order of MJX's 3 s longer compile.
 
 from __future__ import annotations
 
-from typing import Optional
-
 import jax
 import mujoco
 
 from ..errors import ModelLoadError
 from ..task.env import Env, MJXUnavailable
 from . import contacts
-from .native import NativeModel, native_model
+from .native import native_model
 
 SMALL_NV = 6
 """The most degrees of freedom of a model ``auto`` keeps on MJX on a CPU (with no contacts and no RK4)."""
@@ -86,5 +84,4 @@ def on_engine(env: Env, setting: str) -> Env:
     if engine == "mjx":
         env.mjx_model()  # built here, or refused with MJX's reason (ModelLoadError)
         return env.on_engine(None)
-    native: Optional[NativeModel] = native_model(env.mj_model)
-    return env.on_engine(native, (why,) if why else ())
+    return env.on_engine(native_model(env.mj_model), (why,) if why else ())

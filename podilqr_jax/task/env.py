@@ -92,7 +92,7 @@ class EnvDims:
 class EnvData(NamedTuple):
     """Traced arrays of a task."""
 
-    model: Any  # mjx.Model on the MJX engine; None on the native one; MJXUnavailable where MJX cannot convert it
+    model: Any  # mjx.Model on the MJX engine (``Env.data``); None on the native one; MJXUnavailable where MJX cannot
     C: jnp.ndarray  # [nz, nx] observation matrix (zero rows for sensor channels)
     x0: jnp.ndarray  # [nx] start state (qpos, qvel, act)
     z_target: jnp.ndarray  # [nz]
@@ -117,7 +117,7 @@ class Env:
     name: str
     mj_model: mujoco.MjModel
     dims: EnvDims
-    arrays: EnvData  # the task's arrays, the MJX model left out (None) until MJX runs: read ``data``
+    arrays: EnvData  # the task's arrays without MJX's model (None): read ``data``, which adds it where MJX runs
     observation_labels: tuple[str, ...]
     control_dt: float
     solver_defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
@@ -298,7 +298,7 @@ class Env:
         MJX's copy of the model (built on the first read, then kept), on the
         native engine with none. Where MJX cannot convert the model the model
         field is an :class:`MJXUnavailable`, which refuses to run with MJX's reason."""
-        if self.dims.native is not None or self.arrays.model is not None:
+        if self.dims.native is not None:
             return self.arrays
         return self.arrays._replace(model=self.mjx_models.get("jax", sensors=self.dims.sensors))
 
@@ -341,9 +341,8 @@ class Env:
         )
         kwargs.update(changes)
         env = Env.from_model(self.mj_model, **kwargs)
-        env = dataclasses.replace(
-            env, observation_labels=self.observation_labels, mjx_models=self.mjx_models, model_notes=self.model_notes
-        ).on_engine(self.dims.native)
+        env = dataclasses.replace(env, observation_labels=self.observation_labels, mjx_models=self.mjx_models)
+        env = env.on_engine(self.dims.native, self.model_notes)
         goal = int(self.arrays.goal_step)
         return env if goal == self.dims.horizon or "horizon" in changes else env.with_goal_step(goal)
 
@@ -354,7 +353,7 @@ class Env:
         if notes is None:
             notes = mjx_notes(self.mj_model) if native is None else ()
         dims = dataclasses.replace(self.dims, native=native)
-        return dataclasses.replace(self, dims=dims, arrays=self.arrays._replace(model=None), model_notes=tuple(notes))
+        return dataclasses.replace(self, dims=dims, model_notes=tuple(notes))
 
     def with_start_state(self, x0) -> "Env":
         """A copy starting from the state ``x0`` = [qpos, qvel, act] (the same MJX
@@ -507,8 +506,7 @@ class MJXUnavailable:
     pytree (nothing is traced) that refuses, with MJX's reason, where MJX
     would run (``sim.rollout.make_data``)."""
 
-    reason: str  # MJX's refusal, one paragraph (``mjx_model_of``)
-    name: str  # the task's name
+    reason: str  # MJX's refusal, one paragraph (``mjx_model_of``), naming the task
 
     @property
     def message(self) -> str:
@@ -524,9 +522,7 @@ class MJXUnavailable:
         return self.reason.split(". ")[0].rstrip(".")
 
 
-jax.tree_util.register_pytree_node(
-    MJXUnavailable, lambda u: ((), (u.reason, u.name)), lambda aux, _: MJXUnavailable(*aux)
-)
+jax.tree_util.register_pytree_node(MJXUnavailable, lambda u: ((), u.reason), lambda reason, _: MJXUnavailable(reason))
 
 
 class MJXModels:
@@ -559,7 +555,7 @@ class MJXModels:
             if sensors:
                 _check_sensors_run(model, self.name)
         except ModelLoadError as exc:
-            return MJXUnavailable(str(exc), self.name)
+            return MJXUnavailable(str(exc))
         return model
 
 
