@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
+import time
 from typing import Any, Callable, Iterator, Optional
 
 import jax
@@ -57,6 +58,14 @@ def current() -> Optional["Member"]:
     return getattr(_local, "member", None)
 
 
+def waited() -> float:
+    """The seconds this thread's stage calls have waited in its group so far for
+    the other solves to reach theirs (0 outside a group): a stage call's time
+    is this wait and then its batch's run."""
+    m = current()
+    return m.waited if m is not None else 0.0
+
+
 class _Call:
     """One solve's submitted stage call, and then its outcome."""
 
@@ -64,6 +73,7 @@ class _Call:
         self.member, self.signature, self.fun, self.static = member, signature, fun, static
         self.leaves, self.treedef, self.solo = leaves, treedef, solo
         self.round = 0
+        self.ran = 0.0  # seconds its batch ran
         self.done = False
         self.value: Any = None
         self.error: Optional[BaseException] = None
@@ -96,6 +106,18 @@ class Group:
             with self._cond:
                 self.live -= 1
                 self._run_ready()
+
+    def step_out(self) -> None:
+        """A solve of the group stops submitting for a while (it waits at a race's
+        rung, ``ilqr.race``): the others' calls no longer wait for it."""
+        with self._cond:
+            self.live -= 1
+            self._run_ready()
+
+    def step_in(self, n: int) -> None:
+        """``n`` solves that stepped out submit again: every batch waits for them."""
+        with self._cond:
+            self.live += n
 
     def abort(self) -> None:
         """Every waiting and later submission raises ``KeyboardInterrupt``."""
@@ -136,6 +158,7 @@ class Group:
             for c in chosen:
                 del self.pending[c.member]
             self.rounds += 1
+            t0 = time.perf_counter()
             try:
                 values = self._execute(chosen)
                 for c, v in zip(chosen, values, strict=True):
@@ -143,7 +166,9 @@ class Group:
             except BaseException as exc:  # noqa: BLE001 - handed to each solve of the batch, in its own thread
                 for c in chosen:
                     c.error = exc
+            ran = time.perf_counter() - t0
             for c in chosen:
+                c.ran = ran
                 c.done = True
             self._cond.notify_all()
 
@@ -187,6 +212,7 @@ class Member:
 
     def __init__(self, group: Group, index: int):
         self.group, self.index = group, index
+        self.waited = 0.0  # ``waited()``
 
     def submit(self, name: str, fun: Callable, static: dict, traced: dict, solo: Callable) -> Any:
         """Run stage ``name`` (``fun`` with the ``static`` keyword arguments and
@@ -195,7 +221,12 @@ class Member:
         leaves, treedef = jax.tree_util.tree_flatten(traced)
         avals = tuple(jax.typeof(leaf) for leaf in leaves)
         signature = (name, tuple(static.items()), treedef, avals)  # static: in the stage's own order
-        return self.group.submit(_Call(self.index, signature, fun, static, leaves, treedef, solo))
+        call = _Call(self.index, signature, fun, static, leaves, treedef, solo)
+        t0 = time.perf_counter()
+        try:
+            return self.group.submit(call)
+        finally:
+            self.waited += max(0.0, time.perf_counter() - t0 - call.ran)
 
 
 def _batched(fun: Callable, static: dict, treedef, shared: tuple, width: int) -> Callable:

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compilation import lockstep
 from ..sim.rollout import (
     Policy,
     injected_perturbations,
@@ -120,7 +121,7 @@ class DataBased:
     def __call__(self, key: jax.Array, nominal, gains, sigma: float, experiment: Experiment) -> Identified:
         """One identification about ``nominal`` at scale ``sigma`` (times ``units``)."""
         cfg, dims = self.cfg, self.dims
-        t0 = time.perf_counter()
+        t0, w0 = time.perf_counter(), lockstep.waited()
         mirrored = experiment.mirrored and not experiment.open_loop
         closed = self.closed_loop and not experiment.open_loop
         if closed and self.unsaturate is not None:
@@ -132,7 +133,7 @@ class DataBased:
             n_avg=self.n_avg, noisy=self.noisy, chunk=self.chunk, mirrored=mirrored,
         )  # fmt: skip
         traj.z.block_until_ready()
-        t1 = time.perf_counter()
+        t1, w1 = time.perf_counter(), lockstep.waited()
         # mirrored rollouts come back as half-differences: deviations about a zero nominal
         z_bar, u_bar = (self.zero_z, self.zero_u) if mirrored else (nominal.z_bar, nominal.u_bar)
         if cfg.estimator == "iv":
@@ -147,9 +148,10 @@ class DataBased:
             rho, floor = fit_residual(report, nominal.z_bar)
             if np.isfinite(rho):
                 following = adapted_sigma(sigma, rho, floor, 2 if mirrored else 1, cfg)
-        t2 = time.perf_counter()
+        t2, w2 = time.perf_counter(), lockstep.waited()
         rollouts = cfg.n_s * self.n_avg * (2 if mirrored else 1)
-        seconds = {"rollouts": t1 - t0, "fit": t2 - t1}
+        # with several starts in lockstep, the time their calls waited for each other is a phase of its own
+        seconds = {"rollouts": (t1 - t0) - (w1 - w0), "fit": (t2 - t1) - (w2 - w1), "waiting": w2 - w0}
         return Identified(model, problem, rollouts, n_bad, seconds, following, self.needed)
 
 
@@ -167,10 +169,12 @@ class Exact:
     jacobian: str = "exact"
 
     def __call__(self, key: jax.Array, nominal, gains, sigma: float, experiment: Experiment) -> Identified:
-        t0 = time.perf_counter()
+        t0, w0 = time.perf_counter(), lockstep.waited()
         model = linearise(self.dims, self.data, nominal.x_bar, nominal.u_bar, self.jacobian)
         problem = linearisation_problem(model)
-        return Identified(model, problem, 0, 0, {"rollouts": 0.0, "fit": time.perf_counter() - t0}, None)
+        w = lockstep.waited() - w0
+        seconds = {"rollouts": 0.0, "fit": time.perf_counter() - t0 - w, "waiting": w}
+        return Identified(model, problem, 0, 0, seconds, None)
 
 
 def data_based(env: Env, cfg: SolverConfig, q: int, data: EnvData, noisy: bool, chunk: Optional[int]) -> DataBased:

@@ -47,7 +47,14 @@ _FORMAT_2_NAMES = {
 _RESUMABLE_CHANGES = ("max_iterations",)
 # Settings added after format 3, left out of the fingerprint at their default,
 # so that a checkpoint written before they existed still resumes.
-_LATER_DEFAULTS = {"jacobian": "auto", "engine": "auto", "restarts": 1, "restart_scale": 0.3}
+_LATER_DEFAULTS = {
+    "jacobian": "auto",
+    "engine": "auto",
+    "restarts": 1,
+    "restart_scale": 0.3,
+    "race_rung": 32,
+    "race_margin": 1.5,
+}
 
 
 def fingerprint(method: str, env, dims, cfg) -> dict[str, Any]:

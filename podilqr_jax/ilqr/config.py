@@ -43,6 +43,12 @@ with a free or ball joint, exact otherwise; ``sim.contacts.jacobian``)."""
 MIN_N_S = 40
 """The fewest sysid rollouts of the default ``n_s`` (``SolverConfig.resolved_n_s``)."""
 
+RACE_RUNG = 32
+"""The default ``race_rung``: the first rung of the race between starts (``ilqr.race``)."""
+
+RACE_MARGIN = 1.5
+"""The default ``race_margin``: a start of the worse half at a rung races on within this factor of the best."""
+
 CONTACT_RESTARTS = 4
 """The starts of a solve of a contact-rich model under the default ``restarts``
 (``SolverConfig.resolved_restarts``). Contacts make the cost piecewise smooth,
@@ -115,6 +121,13 @@ class ILQRSettings:
         in lockstep, each stage of theirs one batched call
         (``compilation.lockstep``); every start's cost is in ``Result.starts``.
       restart_scale: the size of the other starts' perturbation, above.
+      race_rung: with several starts, the iteration of the race's first rung
+        (``ilqr.race``): at iterations race_rung, 2 race_rung, 4 race_rung, ...
+        the starts of the worse half of those still racing, ranked by their
+        cost there, stop (status ``outraced``) where their cost is above
+        ``race_margin`` times the best's. 0: every start runs to its own end.
+      race_margin: how far behind the best (a factor >= 1 on its cost) a
+        start of the worse half may be at a rung and race on.
     """
 
     max_iterations: int = 300
@@ -129,6 +142,8 @@ class ILQRSettings:
     seed: int = 0
     restarts: Optional[int] = None
     restart_scale: float = 0.3
+    race_rung: int = RACE_RUNG
+    race_margin: float = RACE_MARGIN
 
     def validate(self) -> None:
         """Raise a ``ConfigError`` for the first of this group's settings out of its range, saying what it takes."""
@@ -138,6 +153,10 @@ class ILQRSettings:
         if self.restarts is not None:
             check_int("restarts", self.restarts, 1)
         check_nonnegative("restart_scale", self.restart_scale)
+        check_int("race_rung", self.race_rung, 0)
+        margin = self.race_margin
+        if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 1 <= margin < math.inf:
+            raise ConfigError(f"`race_margin` must be a finite number >= 1, a factor on the best cost; got {margin!r}.")
         for name in ("mu_max", "mu_factor"):
             _positive(name, getattr(self, name))
         for name in ("rtol", "gtol", "mu_init", "mu_min", "accept_ratio"):

@@ -36,6 +36,7 @@ from typing import Callable, NamedTuple, Optional
 import jax
 import numpy as np
 
+from ..compilation import lockstep
 from ..compilation.compile_watch import CompileWatch
 from ..identify.identification import Experiment
 from ..sim.rollout import Policy, observations_of, on_device
@@ -54,7 +55,9 @@ from .true_cost import true_costs
 
 Callback = Callable[[IterationInfo], None]
 
-PHASES = ("rollouts", "fit", "backward", "line_search", "evaluation", "host")
+PHASES = ("rollouts", "fit", "backward", "line_search", "evaluation", "waiting", "race", "host")
+"""Where a solve's seconds go. With several starts: ``waiting``, their stage calls waiting for each
+other in lockstep (``compilation.lockstep.waited``); ``race``, waiting at a rung of their race (``race``)."""
 
 
 class RunOptions(NamedTuple):
@@ -114,8 +117,16 @@ class Timing:
         self.compiles: list[int] = []
         self.first_compiles = 0
 
-    def add(self, phase: str, t0: float) -> None:
-        self.phase_s[phase] += time.perf_counter() - t0
+    def add(self, phase: str, t0: tuple[float, float]) -> None:
+        """The seconds since ``t0`` (``clock()``) to ``phase``, less those its stage calls waited in lockstep."""
+        t, w = clock()
+        self.phase_s[phase] += (t - t0[0]) - (w - t0[1])
+        self.phase_s["waiting"] += w - t0[1]
+
+
+def clock() -> tuple[float, float]:
+    """Now, and the seconds this thread's stage calls have waited in lockstep (``Timing.add``)."""
+    return time.perf_counter(), lockstep.waited()
 
 
 def policy_of(nominal: Nominal, K) -> Policy:
@@ -126,7 +137,7 @@ def policy_of(nominal: Nominal, K) -> Policy:
 def measure(ctx: Context, st: SolverState, timing: Timing, policy: Policy, step: Optional[Step], cost0: float):
     """The batched line search of ``policy`` with ``step`` (None: ``ctx.hold``, a
     measurement) about a nominal of cost ``cost0``; returns (its result, accepted)."""
-    t0 = time.perf_counter()
+    t0 = clock()
     st.ls_key, sub = jax.random.split(st.ls_key)
     step = (ctx.hold if step is None else step)._replace(cost0=on_device(cost0))
     ls = line_search(ctx.search, ctx.data, policy, step, ctx.candidates, sub)
@@ -140,7 +151,7 @@ def ground_truth(ctx: Context, st: SolverState, timing: Timing) -> tuple[float, 
     """True (closed-loop, noiseless) and open-loop replay cost of the current policy."""
     if not ctx.noisy:
         return st.nominal.cost, st.nominal.cost
-    t0 = time.perf_counter()
+    t0 = clock()
     tc = true_costs(ctx.dims, ctx.q, ctx.data, policy_of(st.nominal, st.gains))
     out = float(tc.closed_loop), float(tc.open_loop)
     timing.add("evaluation", t0)
@@ -215,7 +226,7 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
     elif ctx.data_based:  # the model of the last identification, reused with a larger mu
         record.sigma_history.append(record.sigma_history[-1])
 
-    t0 = time.perf_counter()
+    t0 = clock()
     back = backward_pass(st.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, on_device(st.mu), ctx.reg)
     back_ok = bool(back.ok)
     st.mu = float(back.mu)
@@ -371,9 +382,12 @@ def run(ctx: Context, u_init, callback: Optional[Callback], options: RunOptions)
         return run_within(ctx, u_init, callback, options, interrupts)
 
 
-def run_within(ctx: Context, u_init, callback: Optional[Callback], options: RunOptions, interrupts) -> Result:
+def run_within(
+    ctx: Context, u_init, callback: Optional[Callback], options: RunOptions, interrupts, race=None
+) -> Result:
     """:func:`run` inside an entered ``deferred_interrupts`` (``interrupts``), in
-    any thread: the restarts run one per thread (``restarts``)."""
+    any thread: the restarts run one per thread (``restarts``), each reporting
+    its iterations to their ``race`` (``race.Race``) where one is run."""
     t_start = time.perf_counter()
     timing = Timing()
     total_watch = CompileWatch()
@@ -381,7 +395,7 @@ def run_within(ctx: Context, u_init, callback: Optional[Callback], options: RunO
         st = init(ctx, timing, u_init, options.resume)
         stop = stopping.initial_stop(st.nominal.cost) or stopping.resumed_stop(st.stopped)
         if stop is None:
-            st, stop = _loop(ctx, st, timing, callback, options, interrupts)
+            st, stop = _loop(ctx, st, timing, callback, options, interrupts, race)
     wall = time.perf_counter() - t_start
     # Everything outside the jitted stages. Stage times include their own
     # compilation in the first iteration; compile_s reports it separately.
@@ -389,11 +403,27 @@ def run_within(ctx: Context, u_init, callback: Optional[Callback], options: RunO
     return terminate(ctx, st, stop, timing, total_watch, wall)
 
 
-def _loop(ctx: Context, st: SolverState, timing: Timing, callback, options: RunOptions, interrupts):
+def _raced(ctx: Context, st: SolverState, timing: Timing, race, interrupts) -> Optional[Stop]:
+    """This start's iterations so far reported to the race; its stop where a rung cuts it."""
+    t0 = clock()
+    scores = st.record.true_cost_history if ctx.noisy else st.record.cost_history
+    stop = race.after_iteration(ctx.start, scores, lambda: interrupts.requested)
+    timing.add("race", t0)
+    return stop
+
+
+def _loop(ctx: Context, st: SolverState, timing: Timing, callback, options: RunOptions, interrupts, race=None):
     """Iterations until a stop: (the state, the stop); after a Ctrl-C inside an
     iteration the state is the last completed iteration's."""
     cfg = ctx.cfg
     safe = st.snapshot()
+    if race is not None and st.record.iterations:  # resumed: at a rung, it waits there as it would have
+        stop = _raced(ctx, st, timing, race, interrupts)
+        if stop is not None:
+            st.stopped = [str(stop.status), stop.message]
+            if options.checkpoint is not None:
+                save_checkpoint(options.checkpoint, st, ctx.fingerprint)
+            return st, stop
     try:
         for iteration in range(st.record.iterations + 1, cfg.max_iterations + 1):
             if interrupts.requested:  # Ctrl-C during the last iteration (or before the first)
@@ -406,6 +436,10 @@ def _loop(ctx: Context, st: SolverState, timing: Timing, callback, options: RunO
                 st.record.iterations = iteration
             timing.compiles.append(watch.compiles + (timing.first_compiles if not timing.compiles else 0))
             safe = st.snapshot()
+            if outcome.stop is None and race is not None and iteration < cfg.max_iterations:
+                stop = _raced(ctx, st, timing, race, interrupts)
+                if stop is not None:
+                    outcome = outcome._replace(stop=stop, note=f"outraced at iteration {iteration}")
             if outcome.stop is not None:
                 st.stopped = [str(outcome.stop.status), outcome.stop.message]
             final = outcome.stop is not None or iteration == cfg.max_iterations

@@ -18,6 +18,12 @@ closed-loop cost under noise), with every start's outcome in
 ``Result.starts`` and a warning when the first guess given ended more than
 ``BASIN_RATIO`` above the best: a worse local minimum.
 
+The starts race (``race``): at iterations ``race_rung``, twice that, four
+times that, ... the starts of the worse half of those still racing that are
+more than ``race_margin`` times the best's cost stop, status ``outraced``, so
+that the physics goes to the starts that can still win; ``race_rung = 0``
+runs every start to its own end.
+
 The k solves are not run one after another. Each runs the one driver
 (``driver.run_within``) in a thread of its own, and their stage calls meet in
 a lockstep group (``compilation.lockstep``): each identification, backward
@@ -49,7 +55,8 @@ from ..sim.rollout import on_device
 from .checkpoint import fingerprint
 from .driver import Callback, Context, RunOptions, run_within
 from .interrupts import deferred_interrupts
-from .result import BASIN_RATIO, Result
+from .race import Race
+from .result import BASIN_RATIO, Result, Status
 
 START_FIELDS = ("start", "seed", "cost", "true_cost", "status", "iterations", "rollouts", "wall_s", "cost_history")
 """What ``Result.starts`` holds for each start."""
@@ -106,6 +113,7 @@ def run(ctx: Context, u_init, callback: Optional[Callback], options: RunOptions)
     opts = [_start_options(options, j) for j in range(k)]
     guesses = first_guesses(ctx.cfg, ctx.data.u_low, ctx.data.u_high, u_init, k)
     group = lockstep.Group(k)
+    race = Race(k, ctx.cfg.race_rung, ctx.cfg.race_margin, ctx.cfg.max_iterations, group.step_out, group.step_in)
     results: list[Optional[Result]] = [None] * k
     errors: list[Optional[BaseException]] = [None] * k
     t0 = time.perf_counter()
@@ -114,8 +122,13 @@ def run(ctx: Context, u_init, callback: Optional[Callback], options: RunOptions)
         def solve_start(j: int) -> None:
             try:
                 with group.member(j):
-                    results[j] = run_within(ctxs[j], guesses[j], callback, opts[j], interrupts)
+                    r = results[j] = run_within(ctxs[j], guesses[j], callback, opts[j], interrupts, race)
+                    if r.status == Status.INTERRUPTED:
+                        race.gone()
+                    else:
+                        race.ended(j, r.true_cost_history if r.noisy else r.cost_history)
             except BaseException as exc:  # noqa: BLE001 - raised in the caller's thread below
+                race.gone()
                 errors[j] = exc
                 if not isinstance(exc, KeyboardInterrupt):
                     group.abort()  # the others stop at their next stage call; this error is raised
@@ -135,7 +148,7 @@ def run(ctx: Context, u_init, callback: Optional[Callback], options: RunOptions)
         raise failed[0]
     if all(r is None for r in results):
         raise KeyboardInterrupt
-    return best_of(ctx, ctxs, results, wall, group)
+    return best_of(ctx, ctxs, results, wall, group, race)
 
 
 def _score(r: Result) -> float:
@@ -143,7 +156,7 @@ def _score(r: Result) -> float:
     return c if math.isfinite(c) else math.inf
 
 
-def best_of(ctx: Context, ctxs: list[Context], results: list, wall: float, group) -> Result:
+def best_of(ctx: Context, ctxs: list[Context], results: list, wall: float, group, race: Race) -> Result:
     """The result of the start that ended lowest, with every start's outcome."""
     done = [j for j, r in enumerate(results) if r is not None]
     best = min(done, key=lambda j: (_score(results[j]), j))
@@ -166,7 +179,14 @@ def best_of(ctx: Context, ctxs: list[Context], results: list, wall: float, group
     floor = _score(r)
     worse = [j for j in done if _score(results[j]) > floor * (1 + BASIN_RATIO) + 1e-300]
     warnings = list(r.warnings)
-    if 0 in worse:
+    if 0 in race.cut and best != 0:
+        first = results[0]
+        warnings.insert(
+            0,
+            f"the first guess given (start 0) fell behind: it was outraced at iteration {race.cut[0]} at "
+            f"{_score(first):.6g}; the best start (start {best}) ended at {floor:.6g}",
+        )
+    elif 0 in worse:
         first = results[0]
         ratio = f"{_score(first) / floor:.3g}x " if floor > 0 else ""
         warnings.insert(
@@ -174,15 +194,24 @@ def best_of(ctx: Context, ctxs: list[Context], results: list, wall: float, group
             f"the first guess given (start 0) ended at {_score(first):.6g} ({first.status}), "
             f"{ratio}the best start's {floor:.6g} (start {best}): a worse local minimum",
         )
-    elif worse:
-        warnings.insert(0, f"{len(worse)} of {len(results)} starts ended more than {BASIN_RATIO:.0%} above the best")
+    elif [j for j in worse if j not in race.cut]:
+        n = len([j for j in worse if j not in race.cut])
+        warnings.insert(0, f"{n} of {len(results)} starts ended more than {BASIN_RATIO:.0%} above the best")
     total = sum(s["rollouts"] for s in starts)
     batches = ", ".join(f"{n} of width {w}" for w, n in sorted(group.batches.items()))
+    raced = ""
+    if race.cut:
+        rungs = sorted(set(race.cut.values()))
+        raced = f"; {len(race.cut)} outraced at iteration{'s' if len(rungs) > 1 else ''} {', '.join(map(str, rungs))}"
     message = (
-        f"start {best} of {len(results)} (the lowest; {total} rollouts over all starts; batched calls: {batches}): "
+        f"start {best} of {len(results)} (the lowest{raced}; {total} rollouts over all starts; "
+        f"batched calls: {batches}): "
     )
+    phase_s = dict(r.phase_s)
+    phase_s["other_starts"] = max(0.0, wall - r.wall_s)  # after this start ended, while the others ran on
     return dataclasses.replace(
         r,
+        phase_s=phase_s,
         message=message + r.message,
         warnings=warnings,
         starts=starts,

@@ -24,6 +24,7 @@ class Status(str, enum.Enum):
     NONFINITE = "nonfinite"
     NO_RESPONSE = "no_response"
     INTERRUPTED = "interrupted"
+    OUTRACED = "outraced"  # a start of several, stopped at a race's rung (``race``)
 
     def __str__(self) -> str:
         return self.value
@@ -189,11 +190,13 @@ class Result:
             key = "true_cost" if self.noisy else "cost"
             costs = ", ".join(f"{s[key]:.6g} ({s['status']})" for s in self.starts)
             text += f"; {len(self.starts)} starts, the best is start {self.best_start}; their costs: {costs}"
-            by_start = {s["start"]: s[key] for s in self.starts}
-            first, best = by_start.get(0, math.nan), by_start[self.best_start]
+            by_start = {s["start"]: s for s in self.starts}
+            first, best = by_start.get(0, {}).get(key, math.nan), by_start[self.best_start][key]
+            outraced = by_start.get(0, {}).get("status") == str(Status.OUTRACED)
             if self.best_start != 0 and not first <= best * (1 + BASIN_RATIO):  # also a NaN first
                 ratio = f", {first / best:.3g}x the best" if best > 0 else ""
-                text += f"; the first guess given (start 0) ended in a worse local minimum{ratio}"
+                where = f"was outraced at {first:.6g}" if outraced else "ended in a worse local minimum"
+                text += f"; the first guess given (start 0) {where}{ratio}"
         return text
 
     def to_dict(self) -> dict[str, Any]:
