@@ -19,8 +19,8 @@ replayed, over all the tasks.
     python benchmarks/race.py --race-only            # the race again, the runs without it as saved
 
 Runs go to runs/race/NAME-{off,race}.json; the tables are printed and written to
-runs/race/race.json (the one measured for the docs: benchmarks/results/race/race.json). ``docs/robustness.md`` ("Racing the starts") holds the one
-measured for it.
+runs/race/race.json. The one measured for ``docs/robustness.md`` ("Racing the starts")
+is benchmarks/results/race/race.json.
 """
 
 from __future__ import annotations
