@@ -61,7 +61,7 @@ class Identified(NamedTuple):
     problem: Optional[str]  # one of ``PROBLEMS``, or None: a usable model
     rollouts: int  # rollouts run
     n_bad: int  # sysid rollouts left out of the fit as non-finite
-    seconds: dict  # phase name -> seconds ("rollouts", "fit")
+    seconds: dict  # phase name -> seconds ("rollouts", "fit", "waiting": in lockstep with other starts)
     next_sigma: Optional[float]  # the adapted sysid scale for the next identification (cfg.adapt_sigma), or None
     needed: int = 0  # the fewest good rollouts the fit takes (its regressors; 0 for the linearisation)
 
