@@ -94,7 +94,6 @@ def row_of(name: str, off: dict, on: dict) -> dict:
     row = {"task": name}
     if "final_cost" not in off:
         return row | {"off": {k: off.get(k) for k in ("timed_out", "error")}}
-    key = "true_cost" if off.get("noisy") else "cost"
     histories = [s["cost_history"] for s in off["starts"]]
     iters_off, rollouts_off = _spent(off)
     row.update(
@@ -126,7 +125,6 @@ def row_of(name: str, off: dict, on: dict) -> dict:
         )
     else:
         row["race"] = {k: on.get(k) for k in ("timed_out", "error")}
-    del key
     return row
 
 

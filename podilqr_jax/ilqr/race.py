@@ -48,20 +48,20 @@ def rungs(first: int, max_iterations: int) -> list[int]:
     return out
 
 
+def score_at(scores: Sequence[float], rung: int) -> float:
+    """A start's score after iteration ``rung``, or its last one where it stopped before."""
+    return scores[rung] if len(scores) > rung else (scores[-1] if len(scores) else math.inf)
+
+
 def rank(field: Sequence[int], scores: Sequence[Sequence[float]], ended: Sequence[bool], rung: int, margin: float):
     """The starts of ``field`` best first by their score after iteration
     ``rung`` (``scores[j][rung]``; the last one of a start that ended before
     it), ties to the lower start, and those of the worse half whose score
     there is above ``margin`` times the best's (the ones the rung takes out);
     None where a start still running has not reached the rung."""
-    at = {}
-    for j in field:
-        if len(scores[j]) > rung:
-            at[j] = scores[j][rung]
-        elif ended[j]:
-            at[j] = scores[j][-1] if len(scores[j]) else math.inf
-        else:
-            return None
+    if any(len(scores[j]) <= rung and not ended[j] for j in field):
+        return None
+    at = {j: score_at(scores[j], rung) for j in field}
     ranked = sorted(field, key=lambda j: (at[j], j))
     best = at[ranked[0]]
     return ranked, [j for j in ranked[(len(field) + 1) // 2 :] if at[j] > margin * best]
@@ -87,7 +87,7 @@ def replay(
         for j in out:
             cut[j] = rung
     cut = {j: r for j, r in cut.items() if len(scores[j]) - 1 > r}  # a start that had ended is not cut
-    final = [s[cut[j]] if j in cut else (s[-1] if s else math.inf) for j, s in enumerate(scores)]
+    final = [score_at(s, cut.get(j, len(s))) for j, s in enumerate(scores)]
     return cut, final
 
 
@@ -165,14 +165,11 @@ class Race:
                 continue
             if not self._rank(rung):
                 break
-        back = {j for j in self._waiting - self._put_back if self._settled(self._at(j))}
+        back = {j for j in self._waiting - self._put_back if self._settled(len(self._scores[j]) - 1)}
         if back:
             self._put_back |= back
             self._step_in(len(back))
             self._cond.notify_all()
-
-    def _at(self, start: int) -> int:
-        return len(self._scores[start]) - 1
 
     def _rank(self, rung: int) -> bool:
         """Rank the field at ``rung`` (``rank``); False where a member has not reached it yet."""
@@ -196,16 +193,13 @@ class Race:
             return None
         ranked = self.ranked[rung]
         best = ranked[0]
+        mine, lowest = score_at(self._scores[start], rung), score_at(self._scores[best], rung)
         return Stop(
             Status.OUTRACED,
-            f"outraced at iteration {rung}: its cost {self._score_at(start, rung):.6g} was in the worse half of "
+            f"outraced at iteration {rung}: its cost {mine:.6g} was in the worse half of "
             f"the {len(ranked)} starts racing there and above {self.margin:g} x the lowest "
-            f"({self._score_at(best, rung):.6g}, start {best}); race_rung = 0 runs every start to its end",
+            f"({lowest:.6g}, start {best}); race_rung = 0 runs every start to its end",
         )
-
-    def _score_at(self, start: int, rung: int) -> float:
-        s = self._scores[start]
-        return s[rung] if len(s) > rung else (s[-1] if s else math.inf)
 
 
 def _finite(x: float) -> float:

@@ -194,8 +194,8 @@ def best_of(ctx: Context, ctxs: list[Context], results: list, wall: float, group
             f"the first guess given (start 0) ended at {_score(first):.6g} ({first.status}), "
             f"{ratio}the best start's {floor:.6g} (start {best}): a worse local minimum",
         )
-    elif [j for j in worse if j not in race.cut]:
-        n = len([j for j in worse if j not in race.cut])
+    elif [j for j in worse if j not in race.cut]:  # an outraced start did not end in its minimum
+        n = sum(j not in race.cut for j in worse)
         warnings.insert(0, f"{n} of {len(results)} starts ended more than {BASIN_RATIO:.0%} above the best")
     total = sum(s["rollouts"] for s in starts)
     batches = ", ".join(f"{n} of width {w}" for w, n in sorted(group.batches.items()))
