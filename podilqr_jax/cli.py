@@ -530,6 +530,8 @@ class _Progress:
         )
         if info.sigma == info.sigma:
             stats += f"  sigma {info.sigma:7.2g}"
+        if info.fit_error == info.fit_error:
+            stats += f"  B err {info.fit_error:6.2g}"
         if info.true_cost == info.true_cost and info.true_cost != info.cost:
             stats += f"  true {info.true_cost:10.6g}"
         if info.note:

@@ -33,7 +33,7 @@ GROUP_OF = {
 
 def test_every_setting_sits_in_one_group_and_keeps_its_flat_name():
     names = [f.name for cls in GROUPS.values() for f in dataclasses.fields(cls)]
-    assert len(names) == len(set(names)) == len(SETTINGS) == 37
+    assert len(names) == len(set(names)) == len(SETTINGS) == 39
     assert {name: SETTINGS[name] for name in GROUP_OF} == GROUP_OF
     cfg = pj.SolverConfig(n_s=80, variant="averaged", jacobian="differences")
     assert cfg.identification == pj.IdentificationSettings(n_s=80)

@@ -33,7 +33,8 @@ from ..task.env import Env, EnvData, EnvDims
 from .estimators import fit_information_model_iv
 from .info_state import info_dim, n_regressors
 from .model_based import linearise
-from .sigma import adapted_sigma
+from .quality import fit_quality
+from .sigma import adapted_sigma, noisy_sigma
 from .sysid import LinearModel, excited_rank, fit_information_model, fit_residual, model_is_finite
 
 if TYPE_CHECKING:  # the settings are read, never built, here
@@ -64,6 +65,7 @@ class Identified(NamedTuple):
     seconds: dict  # phase name -> seconds ("rollouts", "fit", "waiting": in lockstep with other starts)
     next_sigma: Optional[float]  # the adapted sysid scale for the next identification (cfg.adapt_sigma), or None
     needed: int = 0  # the fewest good rollouts the fit takes (its regressors; 0 for the linearisation)
+    fit_error: float = float("nan")  # under noise: the fit's estimated relative error of B (identify.quality)
 
 
 def fit_problem(model: LinearModel, n_good: int, needed: int, target_rms) -> Optional[str]:
@@ -143,8 +145,12 @@ class DataBased:
             model, report = fit_information_model(traj.z, traj.u, z_bar, u_bar, self.q, self.rcond, self.max_rank)
         n_bad = int(report.n_bad)
         problem = fit_problem(model, cfg.n_s - n_bad, self.needed, report.target_rms)
-        following = None
-        if self.adapt and problem is None:
+        following, fit_error = None, float("nan")
+        if self.noisy and problem is None:
+            fit_error = fit_quality(model, report, sigma * self.units, cfg.n_s - n_bad, self.q).b_error
+            if cfg.adapt_sigma:
+                following = noisy_sigma(sigma, fit_error, cfg)
+        elif self.adapt and problem is None:
             rho, floor = fit_residual(report, nominal.z_bar)
             if np.isfinite(rho):
                 following = adapted_sigma(sigma, rho, floor, 2 if mirrored else 1, cfg)
@@ -152,7 +158,7 @@ class DataBased:
         rollouts = cfg.n_s * self.n_avg * (2 if mirrored else 1)
         # with several starts in lockstep, the time their calls waited for each other is a phase of its own
         seconds = {"rollouts": (t1 - t0) - (w1 - w0), "fit": (t2 - t1) - (w2 - w1), "waiting": w2 - w0}
-        return Identified(model, problem, rollouts, n_bad, seconds, following, self.needed)
+        return Identified(model, problem, rollouts, n_bad, seconds, following, self.needed, fit_error)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,5 +1,6 @@
 """The sysid scale sigma, adapted between identifications from the fit's own numbers
-(``SolverConfig.adapt_sigma``; docs/robustness.md)."""
+(``SolverConfig.adapt_sigma``): noiseless from the fit's residual (docs/robustness.md),
+under noise from the fit's own estimate of B's error (docs/noise.md)."""
 
 from __future__ import annotations
 
@@ -33,3 +34,20 @@ def adapted_sigma(sigma: float, rho: float, floor: float, order: int, cfg: "Solv
     elif rho < 10.0 * floor:
         new = sigma * 10.0
     return float(min(max(new, cfg.sigma / cfg.sigma_range), cfg.sigma * cfg.sigma_range))
+
+
+def noisy_sigma(sigma: float, b_error: float, cfg: "SolverConfig") -> float:
+    """The sysid scale for the next identification of a noisy solve, from the
+    last fit's estimated relative error of B (``identify.quality``).
+
+    While the residual is the noise's, that error falls like 1 / sigma: a fit
+    above ``cfg.max_fit_error`` grows sigma to put it at half the target (by
+    10x at most per identification; 10x where no signal was seen at all).
+    A fit below the target keeps its sigma: the estimate cannot tell curvature
+    from noise, so it gives no reason to shrink (on a linear system the
+    largest sigma is the best one). At most ``cfg.sigma_range`` times ``cfg.sigma``.
+    """
+    if not b_error > cfg.max_fit_error:  # below the target, or NaN (no estimate): keep
+        return float(sigma)
+    new = sigma * min(10.0, b_error / (0.5 * cfg.max_fit_error))
+    return float(min(new, cfg.sigma * cfg.sigma_range))

@@ -54,6 +54,8 @@ _LATER_DEFAULTS = {
     "restart_scale": 0.3,
     "race_rung": 32,
     "race_margin": 1.5,
+    "max_fit_error": 0.1,
+    "paired_line_search": False,
 }
 
 

@@ -43,6 +43,15 @@ with a free or ball joint, exact otherwise; ``sim.contacts.jacobian``)."""
 MIN_N_S = 40
 """The fewest sysid rollouts of the default ``n_s`` (``SolverConfig.resolved_n_s``)."""
 
+MAX_FIT_ERROR = 0.1
+"""Under noise, the fit's estimated relative error of B that ``adapt_sigma`` aims
+below (``SysidSettings.max_fit_error``; benchmarks/noise_fit.py, docs/noise.md)."""
+
+NOISY_N_FORWARD = 8
+"""The default ``n_forward`` of ``plain`` and ``feedback`` under noise: each
+line-search candidate is the mean of this many noisy rollouts (docs/noise.md,
+"On the robots")."""
+
 RACE_RUNG = 32
 """The default ``race_rung``: the first rung of the race between starts (``ilqr.race``)."""
 
@@ -195,8 +204,13 @@ class IdentificationSettings:
         residual sits on the round-off floor, always inside
         [sigma / sigma_range, sigma x sigma_range]. The scale used at
         every iteration is in ``Result.sigma_history`` and the progress line.
-        Under noise the residual is the noise's, not curvature, and sigma
-        stays as set (docs/robustness.md).
+        Under noise the residual is the noise's, not curvature: sigma is
+        set instead from the fit's estimate of B's relative error
+        (``identify.quality``), grown while it is above ``max_fit_error``
+        (``identify.sigma.noisy_sigma``; docs/noise.md).
+      max_fit_error: under noise, the estimated relative error of B above
+        which ``adapt_sigma`` grows sigma, and above 1 of which the result
+        warns that the fit could not see the controls through the noise.
       max_residual: the fit residual (RMS over the response's, all steps)
         above which ``adapt_sigma`` reads curvature and shrinks sigma.
       sigma_range: the adapted sigma stays within this factor of ``sigma``.
@@ -225,6 +239,7 @@ class IdentificationSettings:
     sigma: float = 1e-4
     sigma_scale: str = "actuator"
     adapt_sigma: bool = True
+    max_fit_error: float = MAX_FIT_ERROR
     max_residual: float = 1e-3
     sigma_range: float = 1e3
     rcond: float = 1e-10
@@ -252,7 +267,7 @@ class IdentificationSettings:
             )
         if _finite_number("sigma_range", self.sigma_range) < 1:
             raise ConfigError(f"`sigma_range` must be >= 1 (a factor either side of sigma); got {self.sigma_range!r}.")
-        for name in ("sigma", "max_residual"):
+        for name in ("sigma", "max_residual", "max_fit_error"):
             _positive(name, getattr(self, name))
         check_nonnegative("rcond", self.rcond)
 
@@ -269,15 +284,26 @@ class NoiseSettings:
       n_avg: repeats of each sysid perturbation sequence averaged before the
         fit (``averaged`` only); None picks 10 for ``averaged`` and 1 otherwise.
       n_forward: noisy rollouts averaged into each line-search candidate
-        (``averaged`` only); None picks ``n_s`` for ``averaged``, 1 otherwise.
+        (every variant under noise; not ``nominal``); None picks ``n_s`` for
+        ``averaged``, ``NOISY_N_FORWARD`` for ``plain`` and ``feedback`` on a
+        noisy task, 1 without noise (``resolved_n_forward``).
       mu_cap: under noise a rejected step never ends the solve: the nominal is
         re-measured, mu grows but never above mu_cap, and the solve goes on.
+      paired_line_search: under noise, every line-search candidate runs on the
+        same noise draw (common random numbers: the ``n_forward`` draws of the
+        averaged variant, shared by all candidates), and a candidate is judged
+        against the alpha = 0 candidate of that draw, the current policy, not
+        against the nominal's own earlier, independent draw. False (the
+        default): each candidate draws its own noise and is judged against
+        the nominal's cost, the paper's forward pass; paired with one draw
+        measured worse on the robots (docs/noise.md).
     """
 
     variant: str = "feedback"
     n_avg: Optional[int] = None
     n_forward: Optional[int] = None
     mu_cap: float = 1e3
+    paired_line_search: bool = False
 
     def validate(self) -> None:
         """Raise a ``ConfigError`` for the first of this group's settings out of its range, saying what it takes."""
@@ -285,16 +311,18 @@ class NoiseSettings:
             raise ConfigError(
                 f"Unknown variant {self.variant!r}; choose one of {', '.join(VARIANTS)} (see docs/noise.md)."
             )
-        for name in ("n_avg", "n_forward"):
+        for name, takes in (("n_avg", ("averaged",)), ("n_forward", ("plain", "feedback", "averaged"))):
             value = getattr(self, name)
             if value is not None:
                 check_int(name, value, 1)
-                if value > 1 and self.variant != "averaged":
+                if value > 1 and self.variant not in takes:
                     raise ConfigError(
-                        f"`{name}`={value} only applies to variant='averaged' (got variant={self.variant!r}); "
-                        f"set variant='averaged' or drop {name}."
+                        f"`{name}`={value} only applies to variant={' or '.join(repr(v) for v in takes)} "
+                        f"(got variant={self.variant!r}); set one of them or drop {name}."
                     )
         _positive("mu_cap", self.mu_cap)
+        if not isinstance(self.paired_line_search, bool):
+            raise ConfigError(f"`paired_line_search` must be true or false; got {self.paired_line_search!r}.")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -532,11 +560,14 @@ class SolverConfig:
         group = self.resolved_n_avg() if group is None else group
         return max(group, fit - fit % group)
 
-    def resolved_n_forward(self) -> int:
-        """``n_forward``, or where it is None ``n_s`` for the averaged variant and 1 otherwise."""
+    def resolved_n_forward(self, noisy: bool = True) -> int:
+        """``n_forward``, or where it is None ``n_s`` for the averaged variant,
+        ``NOISY_N_FORWARD`` for plain and feedback on a ``noisy`` task, else 1."""
         if self.n_forward is not None:
             return self.n_forward
-        return self.n_s if self.variant == "averaged" else 1
+        if self.variant == "averaged":
+            return self.n_s
+        return NOISY_N_FORWARD if noisy and self.variant in ("plain", "feedback") else 1
 
     def validate(self, env: Env, data_based: bool = True) -> int:
         """Check every group, then the settings against each other and the task; returns the q to use."""

@@ -211,6 +211,7 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
         st.model, iter_rollouts = found.model, found.rollouts
         if ctx.data_based:  # the model-based reference has no scale
             record.sigma_history.append(sigma)
+            record.fit_error_history.append(found.fit_error)
         if found.next_sigma is not None and st.reidentified == 0:  # adapt from the base scale only
             st.sigma = found.next_sigma
         record.rollouts += iter_rollouts
@@ -223,8 +224,14 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
         if found.n_bad:
             record.diverged_rollouts += found.n_bad
             note = f"{found.n_bad} sysid rollouts diverged, left out of the fit"
+        elif found.fit_error > 1.0 and not any(e > 1.0 for e in record.fit_error_history[:-1]):
+            note = (
+                f"B err {found.fit_error:.3g}: the controls' effect is below the noise at sigma {sigma:.3g}, "
+                "the model's gains are noise" + ("; sigma grows" if cfg.adapt_sigma else "; raise sigma or n_s")
+            )
     elif ctx.data_based:  # the model of the last identification, reused with a larger mu
         record.sigma_history.append(record.sigma_history[-1])
+        record.fit_error_history.append(record.fit_error_history[-1])
 
     t0 = clock()
     back = backward_pass(st.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, on_device(st.mu), ctx.reg)
@@ -472,8 +479,24 @@ def _info(st: SolverState, iteration: int, outcome: Outcome, wall: float, ctx: C
         true_cost=record.true_cost_history[-1],
         note=outcome.note,
         sigma=record.sigma_history[-1] if record.sigma_history else float("nan"),
+        fit_error=record.fit_error_history[-1] if record.fit_error_history else float("nan"),
         engine=ctx.dims.engine,
         start=ctx.start,
+    )
+
+
+def blind_fit(fit_errors) -> str:
+    """The warning of a noisy solve whose fits could not see the controls through
+    the noise (``identify.quality``: B's estimated relative error above 1 over
+    most of the run), or ""."""
+    errors = np.asarray([e for e in fit_errors if e == e], dtype=float)
+    if errors.size == 0 or not np.median(errors) > 1.0:
+        return ""
+    return (
+        f"the fit could not see the controls through the noise: B's estimated relative error was above 1 in "
+        f"{int(np.sum(errors > 1.0))} of {errors.size} identifications (median {np.median(errors):.3g}), so the "
+        "gradients and gains are mostly noise; raise sigma (adapt_sigma grows it up to sigma x sigma_range), "
+        "n_s, or with variant='averaged' n_avg (docs/noise.md)"
     )
 
 
@@ -497,6 +520,9 @@ def terminate(ctx: Context, st: SolverState, stop: Stop, timing: Timing, watch: 
         warnings.append(
             f"{record.mu_retries} times no step lowered the cost and the backward pass was redone with a larger mu"
         )
+    blind = blind_fit(record.fit_error_history)
+    if blind:
+        warnings.append(blind)
     if dims.quats and not ctx.data_based and ctx.identify.jacobian == "exact":
         warnings.append(
             "jacobian='exact' on a model with a free or ball joint: MJX's forward-mode derivative of a quaternion's "

@@ -17,6 +17,10 @@ n_alphas x n_fwd; the driver then also passes alpha = 0 as the last candidate.
 It can never be accepted (its predicted decrease is zero), so when nothing is
 accepted the chosen candidate is a fresh measurement of the current policy:
 that is how the driver re-measures a nominal whose cost was a lucky draw.
+With ``paired`` (``SolverConfig.paired_line_search``) every candidate runs on
+the same ``n_fwd`` noise draws and is judged against that alpha = 0
+candidate instead of the nominal's earlier cost: a paired comparison, in
+which the noise both share cancels from the difference of their costs.
 
 Memory: a batch larger than ``chunk`` rollouts (the solver's memory budget,
 ``SolverConfig.resolved_chunk``) runs as a ``lax.map`` over chunks
@@ -63,6 +67,7 @@ class Search(NamedTuple):
     n_fwd: int = 1  # rollouts per candidate; their mean is the candidate's trajectory
     noisy: bool = False  # noisy rollouts (the task's ``Disturbance``)
     chunk: Optional[int] = None  # at most this many rollouts at once (``ExecutionPlan.ls_chunk``); None: one batch
+    paired: bool = False  # under noise: one noise draw for every candidate, each judged against alpha = 0's cost
 
 
 class Candidates(NamedTuple):
@@ -94,7 +99,12 @@ def line_search(
     batch = alphas.shape[0] * n_fwd
     candidate_offsets = alphas[:, None, None] * step.k[None]
     no_perturbation = jnp.zeros((dims.horizon, dims.nu), step.k.dtype)
-    noise = sample(key, data.noise, batch, dims.horizon) if search.noisy else None
+    noise = None
+    if search.noisy and search.paired:  # the candidates' common draws, candidate-major as the batch is
+        draws = sample(key, data.noise, n_fwd, dims.horizon)
+        noise = jax.tree_util.tree_map(lambda a: jnp.tile(a, (alphas.shape[0],) + (1,) * (a.ndim - 1)), draws)
+    elif search.noisy:
+        noise = sample(key, data.noise, batch, dims.horizon)
     if search.chunk is not None and batch > search.chunk:
         traj = _chunked_candidates(dims, q, data, policy, candidate_offsets, noise, n_fwd, search.chunk)
     else:
@@ -102,15 +112,17 @@ def line_search(
         offsets, noise = shard_batch((offsets, noise), batch, dims)
         traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True, noise=noise)
         traj = average_repeats(traj, n_fwd)
-    return _choose(q, data, traj, alphas, step, candidates.accept_ratio)
+    return _choose(q, data, traj, alphas, step, candidates.accept_ratio, search.noisy and search.paired)
 
 
-def _choose(q, data, traj: Trajectory, alphas, step: Step, accept_ratio) -> LineSearchResult:
-    """The largest accepted candidate of ``traj`` [n_cand, ...] (each candidate's mean rollout)."""
+def _choose(q, data, traj: Trajectory, alphas, step: Step, accept_ratio, paired: bool = False) -> LineSearchResult:
+    """The largest accepted candidate of ``traj`` [n_cand, ...] (each candidate's mean rollout);
+    ``paired``: judged against the last candidate (alpha = 0 on the same noise) instead of ``step.cost0``."""
     cost, finite = batch_costs(traj.z, traj.u, data)
+    cost0 = cost[-1] if paired else step.cost0
     expected = -(alphas * step.dV1 + alphas**2 * step.dV2)
-    ratio = (step.cost0 - cost) / jnp.where(expected > 0, expected, jnp.inf)
-    ok = finite & (cost < step.cost0) & (ratio > accept_ratio)
+    ratio = (cost0 - cost) / jnp.where(expected > 0, expected, jnp.inf)
+    ok = finite & (cost < cost0) & (ratio > accept_ratio)
     accepted = jnp.any(ok)
     i = jnp.where(accepted, jnp.argmax(ok), alphas.shape[0] - 1)
     chosen = jax.tree_util.tree_map(lambda a: a[i], traj)

@@ -50,6 +50,7 @@ class IterationInfo:
     true_cost: float = float("nan")  # the policy's cost on the noiseless system
     note: str = ""  # what happened out of the ordinary (a retry, left-out rollouts)
     sigma: float = float("nan")  # the sysid scale of the iteration's identification (NaN: none, or model-based)
+    fit_error: float = float("nan")  # under noise: its fit's estimated relative error of B (identify.quality)
     engine: str = "mjx"  # the engine of the rollouts (``SolverConfig.engine``): mjx or native
     start: int = 0  # which start of a solve with restarts (``SolverConfig.restarts``); 0 without
 

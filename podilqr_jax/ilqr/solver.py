@@ -92,7 +92,7 @@ def solve(
     env = engines.on_engine(env, cfg.engine)
     dims, data = env.dims, on_device(_in_impl(env, cfg.impl))
     noisy = env.noisy and cfg.variant != "nominal"
-    n_fwd = cfg.resolved_n_forward()
+    n_fwd = cfg.resolved_n_forward(noisy)
     plan = _plan(dims, data, cfg, noisy, n_fwd, sysid_rollouts=cfg.n_s * cfg.resolved_n_avg())
     identify = data_based(env, cfg, q, data, noisy, plan.sysid_chunk)
     ctx = _context("pod-ilqr", env, dims, data, cfg, q, identify, noisy, n_fwd, plan)
@@ -197,7 +197,7 @@ def _context(method, env, dims, data, cfg, q, identify, noisy: bool, n_fwd: int,
         reg=Regularisation(on_device(cfg.mu_min), on_device(cfg.mu_max), on_device(cfg.mu_factor)),
         steps=steps,
         plan=plan,
-        search=Search(dims, q, n_fwd, noisy, plan.ls_chunk),
+        search=Search(dims, q, n_fwd, noisy, plan.ls_chunk, noisy and cfg.paired_line_search),
         candidates=Candidates(alphas, on_device(cfg.accept_ratio)),
         hold=Step(on_device(np.zeros((dims.horizon, dims.nu))), on_device(np.inf), no_change, no_change),
         fingerprint=fingerprint(method, env, dims, cfg),

@@ -48,7 +48,9 @@ class Record:
     loop on the noiseless system) and ``open_loop_cost_history`` (the nominal
     controls replayed open loop on it) do; ``alpha_history`` (0: rejected),
     ``mu_history`` and ``grad_norm_history`` hold one entry per backward pass,
-    ``sigma_history`` the sysid scale of the model each data-based iteration used.
+    ``sigma_history`` the sysid scale of the model each data-based iteration used
+    and ``fit_error_history`` that model's estimated relative error of B
+    (``identify.quality``; under noise only, NaN otherwise).
     """
 
     iterations: int = 0  # iterations completed
@@ -67,6 +69,7 @@ class Record:
     mu_history: list = dataclasses.field(default_factory=list)
     grad_norm_history: list = dataclasses.field(default_factory=list)
     sigma_history: list = dataclasses.field(default_factory=list)
+    fit_error_history: list = dataclasses.field(default_factory=list)
 
     @classmethod
     def counters(cls) -> tuple[str, ...]:

@@ -138,8 +138,8 @@ def run_study(
                 name, horizon=settings.horizon, noise=NoiseModel.paper(settings.s0, partial=observation == "partial")
             )
             # The paper compares the variants at one sigma: the noiseless reference row (``nominal``)
-            # keeps it too, with the paper's fit (no adaptive scale, rank cap or change of experiment,
-            # which act on noiseless solves only; the noisy rows are the same either way).
+            # keeps it too, with the paper's fit (no adaptive scale, rank cap or change of experiment),
+            # and the paper's forward pass: one rollout per candidate but for the averaged variant.
             base = default_config(env).replace(**PAPER_NOISELESS)
             if settings.max_iterations and system in settings.max_iterations:
                 base = base.replace(max_iterations=settings.max_iterations[system])
@@ -150,6 +150,8 @@ def run_study(
                     nominal_true = None
                     for variant in variants:
                         settings_v = ROW_SETTINGS.get(variant, dict(variant=variant))
+                        if variant != "averaged":  # the paper's forward pass: one rollout per candidate
+                            settings_v = {"n_forward": 1} | settings_v
                         cfg = base.replace(seed=seed, sigma=base.sigma * factor, **settings_v)
                         r = solve(env, cfg)
                         if variant == "nominal":

@@ -48,8 +48,8 @@ _SYSTEMS: dict[str, dict[str, Any]] = {
         },
         solver=dict(sigma=1e-5, n_s=40),
         noisy_solver={
-            "full": dict(sigma=1e-2, n_s=40, variant="feedback", max_iterations=100),
-            "partial": dict(sigma=1e-1, n_s=40, variant="averaged", max_iterations=100),
+            "full": dict(sigma=1e-2, n_s=40, variant="feedback", max_iterations=100, adapt_sigma=False, n_forward=1),
+            "partial": dict(sigma=1e-1, n_s=40, variant="averaged", max_iterations=100, adapt_sigma=False),
         },
     ),
     "cartpole": dict(
@@ -63,8 +63,8 @@ _SYSTEMS: dict[str, dict[str, Any]] = {
         },
         solver=dict(sigma=1e-2, n_s=40),
         noisy_solver={
-            "full": dict(sigma=1e-1, n_s=40, variant="feedback", max_iterations=200),
-            "partial": dict(sigma=1.0, n_s=40, variant="averaged", max_iterations=200),
+            "full": dict(sigma=1e-1, n_s=40, variant="feedback", max_iterations=200, adapt_sigma=False, n_forward=1),
+            "partial": dict(sigma=1.0, n_s=40, variant="averaged", max_iterations=200, adapt_sigma=False),
         },
     ),
     "doublependulum": dict(
