@@ -231,7 +231,8 @@ def step(ctx: Context, st: SolverState, timing: Timing) -> Outcome:
             )
     elif ctx.data_based:  # the model of the last identification, reused with a larger mu
         record.sigma_history.append(record.sigma_history[-1])
-        record.fit_error_history.append(record.fit_error_history[-1])
+        # (a checkpoint written before fit errors were recorded has none to repeat)
+        record.fit_error_history.append(record.fit_error_history[-1] if record.fit_error_history else float("nan"))
 
     t0 = clock()
     back = backward_pass(st.model, nominal.Z_bar, nominal.u_bar, ctx.cost_model, on_device(st.mu), ctx.reg)
