@@ -16,7 +16,7 @@ squares (``fit_information_model``) in two ways:
 Per cell (medians over the seeds) it prints what the noise does to B: the
 relative error (Frobenius, all steps) of each noisy fit against the fit of
 the same perturbations without noise; the fit's own estimate of that error
-(``fit_quality``, what the solver reports as ``B err``); the signal-to-noise
+(``quality.b_error``, what the solver reports as ``B err``); the signal-to-noise
 of the excitation, the RMS one-step response of the state to the
 perturbations (exact B times sigma) over the RMS one-step process noise; and
 the centred fit's errors against the exact linearisation of the engine's step
@@ -40,7 +40,7 @@ import numpy as np
 import podilqr_jax as pj
 from podilqr_jax.identify.identification import actuator_units
 from podilqr_jax.identify.model_based import linearise
-from podilqr_jax.identify.quality import fit_quality
+from podilqr_jax.identify.quality import b_error
 from podilqr_jax.sim import engines
 from podilqr_jax.sim.rollout import Policy, perturbation_rollouts, rollout_batch
 
@@ -71,7 +71,8 @@ def main() -> None:
     dims, data, q = env.dims, env.data, 1
     u_bar, K = jnp.asarray(result.controls), jnp.asarray(result.K)
     zero = jnp.zeros_like(u_bar)
-    x_clean = rollout_batch(dims, q, engines.on_engine(clean, engines.resolve("auto", clean)).data,
+    clean_data = engines.on_engine(clean, engines.resolve("auto", clean)).data
+    x_clean = rollout_batch(dims, q, clean_data,
                             Policy(u_bar, jnp.zeros((dims.horizon, dims.nz)), jnp.zeros_like(K)),
                             zero, zero, record_state=True)  # fmt: skip
     exact = linearise(dims, data, x_clean.x, u_bar, "differences")
@@ -79,9 +80,9 @@ def main() -> None:
     sw = float(noisy.noise.process)
     rows = []
     print(f"{noisy.name}: noiseless cost {result.final_cost:.4g}; noise {noisy.noise}")
-    print("| sigma | n_s | signal/noise | B err, nominal | B err, centred | fit_quality | B vs exact | A vs exact |")
+    print("| sigma | n_s | signal/noise | B err, nominal | B err, centred | B err estimate | B vs exact | A vs exact |")
     print("|---|---|---|---|---|---|---|---|")
-    clean_data = engines.on_engine(clean, engines.resolve("auto", clean)).data
+    policy = Policy(u_bar, x_clean.z[:-1], K)
     for sigma in (float(s) for s in args.sigmas.split(",")):
         sigma_t = sigma * units
         response = np.sqrt(np.mean(np.sum((np.asarray(exact.B) * np.asarray(sigma_t)) ** 2, axis=(1, 2))))
@@ -90,7 +91,6 @@ def main() -> None:
             cells = {k: [] for k in ("Bn", "Bc", "quality", "B_exact", "A_exact")}
             for seed in range(args.seeds):
                 key = jax.random.PRNGKey(seed)
-                policy = Policy(u_bar, x_clean.z[:-1], K)
                 # the solver's nominal under noise: one noisy rollout of the policy
                 measured = perturbation_rollouts(dims, q, 1, data, policy, jax.random.fold_in(key, 7), 0.0 * sigma_t,
                                                  noisy=True)  # fmt: skip
@@ -103,7 +103,7 @@ def main() -> None:
                     model, report = pj.fit_information_model(traj.z, traj.u, zb, ub, q, jnp.asarray(1e-10))
                     cells["B" + tag].append(_rel(model.B - B_ref, B_ref))
                     if tag == "c":
-                        cells["quality"].append(fit_quality(model, report, np.asarray(sigma_t), n_s, q).b_error)
+                        cells["quality"].append(b_error(model, report, np.asarray(sigma_t), n_s, q))
                         cells["B_exact"].append(_rel(model.B - exact.B, exact.B))
                         cells["A_exact"].append(_rel(model.A - exact.A, exact.A))
             med = {k: float(np.median(v)) for k, v in cells.items()}

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import podilqr_jax as pj
-from podilqr_jax.identify.quality import fit_quality
+from podilqr_jax.identify.quality import b_error
 from podilqr_jax.identify.sigma import noisy_sigma
 from podilqr_jax.ilqr.driver import blind_fit
 from podilqr_jax.ilqr.line_search import Candidates, Search, Step, line_search
@@ -37,7 +37,7 @@ def test_the_estimate_tracks_the_measured_error_of_B(sigma):
         z, u, B = _linear_data(seed, n_s=60, sigma=sigma, noise=0.01)
         zero_z, zero_u = jnp.zeros(z.shape[1:]), jnp.zeros(u.shape[1:])
         model, report = pj.fit_information_model(z, u, zero_z, zero_u, 1, jnp.asarray(1e-12))
-        estimated.append(fit_quality(model, report, np.full(2, sigma), 60, 1).b_error)
+        estimated.append(b_error(model, report, np.full(2, sigma), 60, 1))
         measured.append(np.linalg.norm(np.asarray(model.B) - B) / (np.linalg.norm(B) * np.sqrt(6)))
     ratio = np.mean(estimated) / np.mean(measured)
     assert 1 / 1.5 < ratio < 1.5, (estimated, measured)
@@ -48,7 +48,7 @@ def test_no_signal_reads_as_an_infinite_error():
     model, report = pj.fit_information_model(
         z, u, jnp.zeros(z.shape[1:]), jnp.zeros(u.shape[1:]), 1, jnp.asarray(1e-12)
     )
-    assert fit_quality(model, report, np.full(2, 1e-7), 60, 1).b_error > 1.0
+    assert b_error(model, report, np.full(2, 1e-7), 60, 1) > 1.0
 
 
 def test_noisy_sigma_grows_above_the_target_and_keeps_below():

@@ -33,7 +33,7 @@ from ..task.env import Env, EnvData, EnvDims
 from .estimators import fit_information_model_iv
 from .info_state import info_dim, n_regressors
 from .model_based import linearise
-from .quality import fit_quality
+from .quality import b_error
 from .sigma import adapted_sigma, noisy_sigma
 from .sysid import LinearModel, excited_rank, fit_information_model, fit_residual, model_is_finite
 
@@ -147,7 +147,7 @@ class DataBased:
         problem = fit_problem(model, cfg.n_s - n_bad, self.needed, report.target_rms)
         following, fit_error = None, float("nan")
         if self.noisy and problem is None:
-            fit_error = fit_quality(model, report, sigma * self.units, cfg.n_s - n_bad, self.q).b_error
+            fit_error = b_error(model, report, sigma * self.units, cfg.n_s - n_bad, self.q)
             if cfg.adapt_sigma:
                 following = noisy_sigma(sigma, fit_error, cfg)
         elif self.adapt and problem is None:

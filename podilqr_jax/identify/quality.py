@@ -21,22 +21,14 @@ residual is the noise's). Host-side numpy on a few kB; no tracing.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
 
-class FitQuality(NamedTuple):
-    """What a noisy fit says about its own B."""
-
-    b_error: float  # the estimated relative error of B (module docstring); inf where no signal is left
-    snr: float  # sqrt(S / (nz nu rms^2)): the response to du over the residual, per fitted entry
-
-
-def fit_quality(model, report, sigma_t, n_s: int, q: int) -> FitQuality:
-    """``model`` and ``report`` of one fit (``sysid``), ``sigma_t`` [nu] the
-    perturbations' standard deviations, ``n_s`` the rollouts fitted, ``q`` the
-    information state's depth."""
+def b_error(model, report, sigma_t, n_s: int, q: int) -> float:
+    """The estimated relative error of B of one fit (module docstring); inf
+    where no signal is left above the residual. ``model`` and ``report`` of the
+    fit (``sysid``), ``sigma_t`` [nu] the perturbations' standard deviations,
+    ``n_s`` the rollouts fitted, ``q`` the information state's depth."""
     B = np.asarray(model.B)
     rms = np.asarray(report.residual_rms, dtype=float)
     nu = B.shape[2]
@@ -44,13 +36,8 @@ def fit_quality(model, report, sigma_t, n_s: int, q: int) -> FitQuality:
     fitted = B[:, :nz, :] * np.asarray(sigma_t, dtype=float)[None, None, :]
     dof = max(int(n_s) - q * (nz + nu), 1)
     error = nz * nu * rms**2 / dof
-    signal = np.sum(fitted**2, axis=(1, 2)) - error
-    total_e, total_s = float(np.sum(error)), float(np.sum(signal))
-    if not (np.isfinite(total_e) and np.isfinite(total_s)):
-        return FitQuality(float("inf"), 0.0)
-    if total_s <= 0.0:
-        return FitQuality(float("inf"), 0.0)
-    if total_e == 0.0:
-        return FitQuality(0.0, float("inf"))
-    per_entry = float(np.sum(nz * nu * rms**2))
-    return FitQuality(float(np.sqrt(total_e / total_s)), float(np.sqrt(total_s / per_entry)))
+    total_e = float(np.sum(error))
+    total_s = float(np.sum(np.sum(fitted**2, axis=(1, 2)) - error))
+    if not (np.isfinite(total_e) and np.isfinite(total_s)) or total_s <= 0.0:
+        return float("inf")
+    return float(np.sqrt(total_e / total_s))

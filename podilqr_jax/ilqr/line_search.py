@@ -99,8 +99,9 @@ def line_search(
     batch = alphas.shape[0] * n_fwd
     candidate_offsets = alphas[:, None, None] * step.k[None]
     no_perturbation = jnp.zeros((dims.horizon, dims.nu), step.k.dtype)
+    paired = search.noisy and search.paired
     noise = None
-    if search.noisy and search.paired:  # the candidates' common draws, candidate-major as the batch is
+    if paired:  # the candidates' common draws, candidate-major as the batch is
         draws = sample(key, data.noise, n_fwd, dims.horizon)
         noise = jax.tree_util.tree_map(lambda a: jnp.tile(a, (alphas.shape[0],) + (1,) * (a.ndim - 1)), draws)
     elif search.noisy:
@@ -112,7 +113,7 @@ def line_search(
         offsets, noise = shard_batch((offsets, noise), batch, dims)
         traj = simulate(dims, q, data, policy, offsets, no_perturbation, record_state=True, noise=noise)
         traj = average_repeats(traj, n_fwd)
-    return _choose(q, data, traj, alphas, step, candidates.accept_ratio, search.noisy and search.paired)
+    return _choose(q, data, traj, alphas, step, candidates.accept_ratio, paired)
 
 
 def _choose(q, data, traj: Trajectory, alphas, step: Step, accept_ratio, paired: bool = False) -> LineSearchResult:
