@@ -10,8 +10,10 @@ noise level eps, the same noisy episodes (common random numbers) for
   model_based            the exact-derivative iLQR's nominal and full-state gains
 
 and reports the mean, spread and median of the task's cost of the true
-trajectory, and the success rate (final observation within ``success_tol``
-of the target in every component).
+trajectory, the success rate (final observation within ``success_tol``
+of the target in every component) and, on a robot that can fall
+(``control/falls.py``: a root body on a free joint or a vertical slide), the
+share of episodes that stayed up and the mean time they stayed up.
 
 The noise at level eps (docs/evaluation.md):
 - actuator noise N(0, (eps u_max)^2) added to every commanded control, u_max
@@ -46,6 +48,7 @@ from ..control.episodes import (
     noise_at_level,
     run_episodes,
 )
+from ..control.falls import FALL_RATIO, falls, root_body, root_heights
 from ..control.kalman import EstimatorNoise, estimator_policy, identify_about_nominal
 from ..control.policy import FeedbackPolicy
 from ..control.replan import replan_episodes
@@ -124,7 +127,10 @@ def _finite(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _row(name: str, eps: float, ep: Episodes, tol: float, reference: float, wall: float, levels: EpisodeNoise) -> dict:
+def _row(
+    name: str, eps: float, ep: Episodes, tol: float, reference: float, wall: float, levels: EpisodeNoise, fall=None
+) -> dict:
+    """One controller at one level; ``fall`` is (model, root body, nominal states, control_dt) or None."""
     cost = np.asarray(ep.cost)
     error = np.asarray(ep.final_error)
     finite = np.isfinite(cost)
@@ -142,7 +148,18 @@ def _row(name: str, eps: float, ep: Episodes, tol: float, reference: float, wall
         "actuator_std": np.asarray(levels.a).tolist(),
         "measurement_std": np.asarray(levels.v).tolist(),
         "wall_s": wall,
+        **_fall_figures(ep, fall),
     }
+
+
+def _fall_figures(ep: Episodes, fall) -> dict:
+    if fall is None:
+        return {}
+    m, body, nominal_states, dt = fall
+    x = np.asarray(ep.x)
+    f = falls(m, body, x, nominal_states)
+    up = np.minimum(f.up_steps, x.shape[1] - 1)  # steps before the fall; the whole episode when it stayed up
+    return {"stayed_up_rate": float(np.mean(f.stayed_up)), "mean_up_s": float(np.mean(up) * dt)}
 
 
 def evaluate(
@@ -197,6 +214,7 @@ def evaluate(
         model = identify_about_nominal(clean, policy, cfg, n_s=settings.estimator_n_s, seed=settings.seed)
         say(f"estimator: ARMA model identified about the nominal ({time.perf_counter() - t0:.1f} s)")
 
+    fall = _fall_setup(env, result)
     rows: list[dict] = []
     replan_compiles = 0
     system = {"measurement_ratio": settings.measurement_ratio, "system_noise": settings.system_noise}
@@ -224,7 +242,9 @@ def evaluate(
             t0 = time.perf_counter()
             ep = run_episodes(clean.dims, clean.data, pol, level_key, lv, settings.episodes)
             ep.cost.block_until_ready()
-            rows.append(_row(name, eps, ep, settings.success_tol, reference.final_cost, time.perf_counter() - t0, lv))
+            rows.append(
+                _row(name, eps, ep, settings.success_tol, reference.final_cost, time.perf_counter() - t0, lv, fall)
+            )
         if settings.replan:
             t0 = time.perf_counter()
             rp = replan_episodes(
@@ -247,6 +267,7 @@ def evaluate(
                 reference.final_cost,
                 time.perf_counter() - t0,
                 obs_levels,
+                fall,
             )
             row["replans"] = rp.replans
             row["replan_compiles_after_first"] = rp.compiles_after_first
@@ -263,18 +284,40 @@ def evaluate(
         "u_max": u_max.tolist(),
         "actuator_limits": [limits[0].tolist(), limits[1].tolist()],
         "replan_compiles_after_first": replan_compiles,
+        "fall": None
+        if fall is None
+        else {"root_body": env.mj_model.body(fall[1]).name, "fall_ratio": FALL_RATIO, "episode_s": T * env.control_dt},
         "controllers": [c for c in CONTROLLERS if any(r["controller"] == c for r in rows)],
         "rows": rows,
     }
 
 
+def _fall_setup(env: Env, result: Result):
+    """(model, root body, nominal states, control_dt) where the robot can fall (``falls.py``), else None."""
+    body = root_body(env.mj_model)
+    states = getattr(result, "states", None)
+    if body is None or states is None:
+        return None
+    states = np.asarray(states, float)
+    if states.ndim != 2 or states.shape[1] != env.dims.nx or not np.all(root_heights(env.mj_model, body, states) > 0):
+        return None  # no nominal states of this model, or a root at or below the floor's height
+    return env.mj_model, body, states, env.control_dt
+
+
 def _level_line(eps: float, rows: list[dict]) -> str:
-    parts = [f"{r['controller']} {r['mean_cost_ratio']:.3g}x ({100 * r['success_rate']:.0f}%)" for r in rows]
+    parts = [f"{r['controller']} {r['mean_cost_ratio']:.3g}x ({100 * r['success_rate']:.0f}%{_up(r)})" for r in rows]
     return f"noise {eps:g}: " + ", ".join(parts)
 
 
+def _up(row: dict) -> str:
+    if "stayed_up_rate" not in row:
+        return ""
+    return f", up {100 * row['stayed_up_rate']:.0f}% {row['mean_up_s']:.2g} s"
+
+
 def format_table(report: dict[str, Any]) -> str:
-    """Markdown: mean cost / model-based optimum (success rate) per controller and level."""
+    """Markdown: mean cost / model-based optimum (success rate) per controller and level; on a robot
+    that can fall, also the share of episodes that stayed up and their mean time up."""
     rows = report["rows"]
     controllers = report["controllers"]
     levels = sorted({r["noise_level"] for r in rows})
@@ -289,7 +332,7 @@ def format_table(report: dict[str, Any]) -> str:
                 continue
             r = match[0]
             spread = r["std_cost"] / report["model_based_cost"]
-            cells.append(f"{r['mean_cost_ratio']:.3g} +- {spread:.2g} ({100 * r['success_rate']:.0f}%)")
+            cells.append(f"{r['mean_cost_ratio']:.3g} +- {spread:.2g} ({100 * r['success_rate']:.0f}%{_up(r)})")
         lines.append(f"| {eps:g} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -300,7 +343,9 @@ def plot_evaluation(report: dict[str, Any], path: str) -> str:
     from ..viz.plots import agg_pyplot
 
     plt = agg_pyplot()
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fall = report.get("fall")
+    fig, axes = plt.subplots(1, 3 if fall else 2, figsize=(16 if fall else 11, 4.2))
+    ax, bx = axes[0], axes[1]
     ref = report["model_based_cost"]
     for c in report["controllers"]:
         rows = sorted((r for r in report["rows"] if r["controller"] == c), key=lambda r: r["noise_level"])
@@ -309,6 +354,8 @@ def plot_evaluation(report: dict[str, Any], path: str) -> str:
         se = np.array([r["std_cost"] / math.sqrt(r["episodes"]) for r in rows]) / ref
         ax.errorbar(eps, mean, yerr=se, marker="o", capsize=3, label=f"{c} ({rows[0]['episodes']} ep.)")
         bx.plot(eps, [100 * r["success_rate"] for r in rows], marker="o", label=c)
+        if fall:
+            axes[2].plot(eps, [100 * r["stayed_up_rate"] for r in rows], marker="o", label=c)
     ax.set_yscale("log")
     ax.set_xlabel("noise level (actuator std / max control)")
     ax.set_ylabel("mean cost / model-based optimum")
@@ -320,6 +367,13 @@ def plot_evaluation(report: dict[str, Any], path: str) -> str:
     bx.set_ylim(-3, 103)
     bx.grid(True, alpha=0.3)
     bx.set_title("success rate")
+    if fall:
+        cx = axes[2]
+        cx.set_xlabel("noise level (actuator std / max control)")
+        cx.set_ylabel(f"stayed up, % of episodes ({fall['episode_s']:g} s each)")
+        cx.set_ylim(-3, 103)
+        cx.grid(True, alpha=0.3)
+        cx.set_title(f"{fall['root_body']} above {fall['fall_ratio']:g} x its nominal height")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
