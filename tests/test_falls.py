@@ -38,9 +38,9 @@ def test_an_episode_falls_at_the_first_step_below_the_share_of_the_nominal_heigh
     up[:, 0] -= 0.9 * (1 - FALL_RATIO) * h0  # rootz lowered, still above the line
     down[3:, 0] -= 1.1 * (1 - FALL_RATIO) * h0  # below it from step 3 on
     nan[2:] = np.nan  # a diverged episode has fallen where it diverged
-    f = falls(m, body, np.stack([up, down, nan]), nominal)
+    f = falls(root_heights(m, body, np.stack([up, down, nan])), root_heights(m, body, nominal))
     assert f.stayed_up.tolist() == [True, False, False]
-    assert f.up_steps.tolist() == [6, 3, 2]
+    assert f.up_steps.tolist() == [5, 3, 2]  # 5 control steps: the whole episode
 
 
 def test_evaluate_reports_fall_figures_only_where_the_robot_can_fall():

@@ -29,7 +29,7 @@ class Falls(NamedTuple):
     """Fall figures of a batch of episodes."""
 
     stayed_up: np.ndarray  # [E] bool: never below FALL_RATIO x the nominal's height
-    up_steps: np.ndarray  # [E] steps before the first fall (S + 1 when it stayed up)
+    up_steps: np.ndarray  # [E] control steps before the first fall (S, the whole episode, when it stayed up)
 
 
 def root_body(m: mujoco.MjModel) -> Optional[int]:
@@ -62,11 +62,10 @@ def root_heights(m: mujoco.MjModel, body: int, states: np.ndarray) -> np.ndarray
     return out.reshape(states.shape[:-1])
 
 
-def falls(m: mujoco.MjModel, body: int, states: np.ndarray, nominal_states: np.ndarray) -> Falls:
-    """Fall figures of episodes ``states`` [E, S+1, nx] against the nominal's states [>= S+1, nx]."""
-    h = root_heights(m, body, states)
-    h_nom = root_heights(m, body, np.asarray(nominal_states)[: h.shape[1]])
-    down = h < FALL_RATIO * h_nom[None, :]
+def falls(heights: np.ndarray, nominal_heights: np.ndarray) -> Falls:
+    """Fall figures of episodes whose root heights are ``heights`` [E, S+1] (``root_heights``),
+    against the nominal's root heights [>= S+1]."""
+    h = np.asarray(heights)
+    down = h < FALL_RATIO * np.asarray(nominal_heights)[None, : h.shape[1]]
     stayed = ~down.any(axis=1)
-    first = np.where(stayed, h.shape[1], np.argmax(down, axis=1))
-    return Falls(stayed, first)
+    return Falls(stayed, np.where(stayed, h.shape[1] - 1, np.argmax(down, axis=1)))

@@ -34,7 +34,7 @@ import dataclasses
 import functools
 import math
 import time
-from typing import Any, Callable, Optional
+from typing import Any, Callable, NamedTuple, Optional
 
 import jax
 import numpy as np
@@ -128,9 +128,16 @@ def _finite(v: Any) -> bool:
 
 
 def _row(
-    name: str, eps: float, ep: Episodes, tol: float, reference: float, wall: float, levels: EpisodeNoise, fall=None
+    name: str,
+    eps: float,
+    ep: Episodes,
+    tol: float,
+    reference: float,
+    wall: float,
+    levels: EpisodeNoise,
+    fall: Optional[_FallCheck] = None,
 ) -> dict:
-    """One controller at one level; ``fall`` is (model, root body, nominal states, control_dt) or None."""
+    """One controller at one level (``fall``: the fall check, or None where the robot cannot fall)."""
     cost = np.asarray(ep.cost)
     error = np.asarray(ep.final_error)
     finite = np.isfinite(cost)
@@ -152,14 +159,20 @@ def _row(
     }
 
 
-def _fall_figures(ep: Episodes, fall) -> dict:
+class _FallCheck(NamedTuple):
+    """What the fall figures of a sweep need (``_fall_check``)."""
+
+    model: Any  # mujoco.MjModel
+    body: int  # the root body (``falls.root_body``)
+    nominal_heights: np.ndarray  # [T+1] its height along the result's nominal
+    dt: float  # the control step, s
+
+
+def _fall_figures(ep: Episodes, fall: Optional[_FallCheck]) -> dict:
     if fall is None:
         return {}
-    m, body, nominal_states, dt = fall
-    x = np.asarray(ep.x)
-    f = falls(m, body, x, nominal_states)
-    up = np.minimum(f.up_steps, x.shape[1] - 1)  # steps before the fall; the whole episode when it stayed up
-    return {"stayed_up_rate": float(np.mean(f.stayed_up)), "mean_up_s": float(np.mean(up) * dt)}
+    f = falls(root_heights(fall.model, fall.body, np.asarray(ep.x)), fall.nominal_heights)
+    return {"stayed_up_rate": float(np.mean(f.stayed_up)), "mean_up_s": float(np.mean(f.up_steps) * fall.dt)}
 
 
 def evaluate(
@@ -214,7 +227,7 @@ def evaluate(
         model = identify_about_nominal(clean, policy, cfg, n_s=settings.estimator_n_s, seed=settings.seed)
         say(f"estimator: ARMA model identified about the nominal ({time.perf_counter() - t0:.1f} s)")
 
-    fall = _fall_setup(env, result)
+    fall = _fall_check(env, result)
     rows: list[dict] = []
     replan_compiles = 0
     system = {"measurement_ratio": settings.measurement_ratio, "system_noise": settings.system_noise}
@@ -284,24 +297,27 @@ def evaluate(
         "u_max": u_max.tolist(),
         "actuator_limits": [limits[0].tolist(), limits[1].tolist()],
         "replan_compiles_after_first": replan_compiles,
-        "fall": None
-        if fall is None
-        else {"root_body": env.mj_model.body(fall[1]).name, "fall_ratio": FALL_RATIO, "episode_s": T * env.control_dt},
+        "fall": None if fall is None else _fall_info(env, fall, T),
         "controllers": [c for c in CONTROLLERS if any(r["controller"] == c for r in rows)],
         "rows": rows,
     }
 
 
-def _fall_setup(env: Env, result: Result):
-    """(model, root body, nominal states, control_dt) where the robot can fall (``falls.py``), else None."""
+def _fall_info(env: Env, fall: _FallCheck, T: int) -> dict:
+    """The report's ``fall``: which body, the ratio that counts as a fall, the episode's length."""
+    return {"root_body": env.mj_model.body(fall.body).name, "fall_ratio": FALL_RATIO, "episode_s": T * fall.dt}
+
+
+def _fall_check(env: Env, result: Result) -> Optional[_FallCheck]:
+    """The fall check where the robot can fall (``falls.py``) and the result's nominal is of this model, else None."""
     body = root_body(env.mj_model)
-    states = getattr(result, "states", None)
-    if body is None or states is None:
+    states = np.asarray(result.states, float)
+    if body is None or states.ndim != 2 or states.shape[1] != env.dims.nx:
         return None
-    states = np.asarray(states, float)
-    if states.ndim != 2 or states.shape[1] != env.dims.nx or not np.all(root_heights(env.mj_model, body, states) > 0):
-        return None  # no nominal states of this model, or a root at or below the floor's height
-    return env.mj_model, body, states, env.control_dt
+    heights = root_heights(env.mj_model, body, states)
+    if not np.all(heights > 0):
+        return None  # a root at or below the floor's height: no height to fall from
+    return _FallCheck(env.mj_model, body, heights, env.control_dt)
 
 
 def _level_line(eps: float, rows: list[dict]) -> str:
